@@ -1,0 +1,84 @@
+//! The 2D accumulation grid (paper §II.C: square cells, 0.1 m by default).
+
+use crate::error::CoreError;
+use crate::geometry::Point;
+
+/// Largest grid allowed by default (2 GiB of f64 cells); beyond this the
+/// user gets an error instead of an out-of-memory crash.
+pub const DEFAULT_MEMORY_CAP_BYTES: u128 = 2 << 30;
+
+/// Placement of a grid in the world frame. Cell `(i, j)` covers
+/// `[x_min + i·cell, x_min + (i+1)·cell) × [y_min + j·cell, y_min + (j+1)·cell)`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GridSpec {
+    pub x_min_m: f64,
+    pub y_min_m: f64,
+    pub cell_m: f64,
+    pub nx: usize,
+    pub ny: usize,
+}
+
+impl GridSpec {
+    /// Grid covering `[x_min, x_max] × [y_min, y_max]` with square cells of
+    /// `cell_m`, refusing grids above `cap_bytes` of f64 cells.
+    pub fn from_bounds(bounds: [f64; 4], cell_m: f64, cap_bytes: u128) -> Result<Self, CoreError> {
+        let [x_min, y_min, x_max, y_max] = bounds;
+        if !cell_m.is_finite() || cell_m <= 0.0 {
+            return Err(CoreError::InvalidGrid(format!("cell size must be finite and > 0, got {cell_m}")));
+        }
+        if bounds.iter().any(|v| !v.is_finite()) || x_max <= x_min || y_max <= y_min {
+            return Err(CoreError::InvalidGrid(format!(
+                "bounds must be finite with xmin < xmax and ymin < ymax, got {x_min},{y_min},{x_max},{y_max}"
+            )));
+        }
+        let nx_f = ((x_max - x_min) / cell_m).ceil().max(1.0);
+        let ny_f = ((y_max - y_min) / cell_m).ceil().max(1.0);
+        let bytes = (nx_f * ny_f * 8.0) as u128;
+        if nx_f * ny_f * 8.0 > cap_bytes as f64 {
+            return Err(CoreError::GridTooLarge { nx: nx_f as usize, ny: ny_f as usize, bytes, cap: cap_bytes });
+        }
+        Ok(Self { x_min_m: x_min, y_min_m: y_min, cell_m, nx: nx_f as usize, ny: ny_f as usize })
+    }
+
+    pub fn len(&self) -> usize {
+        self.nx * self.ny
+    }
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+    pub fn x_max_m(&self) -> f64 {
+        self.x_min_m + self.nx as f64 * self.cell_m
+    }
+    pub fn y_max_m(&self) -> f64 {
+        self.y_min_m + self.ny as f64 * self.cell_m
+    }
+    /// Centre of cell `(i, j)`.
+    pub fn cell_center(&self, i: usize, j: usize) -> Point {
+        Point::new(self.x_min_m + (i as f64 + 0.5) * self.cell_m, self.y_min_m + (j as f64 + 0.5) * self.cell_m)
+    }
+    /// Cell containing `p`, if any.
+    pub fn cell_of(&self, p: Point) -> Option<(usize, usize)> {
+        let i = ((p.x - self.x_min_m) / self.cell_m).floor();
+        let j = ((p.y - self.y_min_m) / self.cell_m).floor();
+        (i >= 0.0 && j >= 0.0 && (i as usize) < self.nx && (j as usize) < self.ny).then(|| (i as usize, j as usize))
+    }
+}
+
+/// Row-major grid of values (`j·nx + i`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Grid {
+    pub spec: GridSpec,
+    pub data: Vec<f64>,
+}
+
+impl Grid {
+    pub fn zeros(spec: GridSpec) -> Self {
+        Self { spec, data: vec![0.0; spec.len()] }
+    }
+    pub fn get(&self, i: usize, j: usize) -> f64 {
+        self.data[j * self.spec.nx + i]
+    }
+    pub fn max(&self) -> f64 {
+        self.data.iter().copied().fold(0.0, f64::max)
+    }
+}
