@@ -1,0 +1,196 @@
+//! `chirpmap map`: echoes CSV → accumulation grid → highlights, plot, summary.
+
+use crate::echoes_csv::read_echoes;
+use crate::output::Staged;
+use crate::plot::{MapPlot, render_map};
+use anyhow::{Context, Result, anyhow, bail};
+use chirpmap_core::grid::DEFAULT_MEMORY_CAP_BYTES;
+use chirpmap_core::{
+    AccumulationMapper, Echo, GridSpec, Highlight, Mapper, MappingParams, Obstacle, Point, Scene, score_highlight,
+    score_obstacle,
+};
+use clap::Args;
+use serde_json::json;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+#[derive(Debug, Args)]
+pub struct MapArgs {
+    /// Echoes CSV (header: source_x,source_y,listener_x,listener_y,delta_d[,weight,t,listener]).
+    #[arg(long)]
+    pub echoes: PathBuf,
+    /// Output directory (created; highlights.csv, map.png, summary.json).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Grid cell size (m).
+    #[arg(long, default_value_t = MappingParams::default().cell)]
+    pub cell: f64,
+    /// Fraction of non-zero cells kept by the percentile threshold.
+    #[arg(long, default_value_t = MappingParams::default().keep_top)]
+    pub keep_top: f64,
+    /// Cells below this fraction of the maximum are zeroed.
+    #[arg(long, default_value_t = MappingParams::default().min_of_max)]
+    pub min_of_max: f64,
+    /// A highlight is the maximum within this radius (m).
+    #[arg(long, default_value_t = MappingParams::default().peak_radius)]
+    pub peak_radius: f64,
+    /// Grid bounds XMIN,YMIN,XMAX,YMAX (m). Default: the region the ellipses cover.
+    #[arg(long, value_parser = parse_bounds, allow_hyphen_values = true)]
+    pub bounds: Option<[f64; 4]>,
+    /// Scene TOML: its obstacles are drawn and used for score_obstacle / score_highlight.
+    #[arg(long)]
+    pub scene: Option<PathBuf>,
+}
+
+pub fn parse_bounds(s: &str) -> Result<[f64; 4], String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|p| p.trim().parse::<f64>().map_err(|_| format!("{p:?} is not a number")))
+        .collect::<Result<_, _>>()?;
+    let b: [f64; 4] = v.try_into().map_err(|_| "expected XMIN,YMIN,XMAX,YMAX".to_string())?;
+    if b.iter().any(|x| !x.is_finite()) || b[0] >= b[2] || b[1] >= b[3] {
+        return Err("need finite values with XMIN < XMAX and YMIN < YMAX".into());
+    }
+    Ok(b)
+}
+
+/// Loads a scene file, naming the file in any error.
+pub fn load_scene(path: &Path) -> Result<Scene> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read scene {}", path.display()))?;
+    Scene::from_toml_str(&text).map_err(|e| anyhow!("{}: {e}", path.display()))
+}
+
+/// Bounds covering every ellipse, focus and extra point, snapped outward to
+/// whole cells.
+pub fn covering_bounds(echoes: &[Echo], extra: &[(Point, Point)], cell_m: f64) -> Option<[f64; 4]> {
+    let mut b = [f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY];
+    let mut grow = |lo: Point, hi: Point| {
+        b = [b[0].min(lo.x), b[1].min(lo.y), b[2].max(hi.x), b[3].max(hi.y)];
+    };
+    for e in echoes {
+        if let Ok(el) = e.ellipse() {
+            let (lo, hi) = el.bbox();
+            grow(lo, hi);
+        }
+    }
+    for &(lo, hi) in extra {
+        grow(lo, hi);
+    }
+    if !b.iter().all(|v| v.is_finite()) {
+        return None;
+    }
+    let snap_lo = |v: f64| (v / cell_m).floor() * cell_m - cell_m;
+    let snap_hi = |v: f64| (v / cell_m).ceil() * cell_m + cell_m;
+    Some([snap_lo(b[0]), snap_lo(b[1]), snap_hi(b[2]), snap_hi(b[3])])
+}
+
+/// Result of mapping a set of echoes.
+#[derive(Debug)]
+pub struct MapOutcome {
+    pub mapper: AccumulationMapper,
+    pub highlights: Vec<Highlight>,
+}
+
+pub fn map_echoes(echoes: &[Echo], spec: GridSpec, params: MappingParams) -> Result<MapOutcome> {
+    let mut mapper = AccumulationMapper::new(spec, params)?;
+    for e in echoes {
+        mapper.add_echo(e)?;
+    }
+    let highlights = mapper.highlights();
+    Ok(MapOutcome { mapper, highlights })
+}
+
+pub fn highlights_csv(highlights: &[Highlight]) -> String {
+    let mut s = String::from("x,y,value\n");
+    for h in highlights {
+        let _ = writeln!(s, "{},{},{}", h.pos.x, h.pos.y, h.value);
+    }
+    s
+}
+
+/// Unique sources and listener positions of the echoes, for plotting.
+pub fn foci(echoes: &[Echo]) -> (Vec<Point>, Vec<Point>) {
+    let mut sources: Vec<Point> = Vec::new();
+    let mut listeners: Vec<Point> = Vec::new();
+    for e in echoes {
+        if !sources.contains(&e.source) {
+            sources.push(e.source);
+        }
+        if listeners.last() != Some(&e.listener) {
+            listeners.push(e.listener);
+        }
+    }
+    (sources, listeners)
+}
+
+pub fn run(args: &MapArgs) -> Result<()> {
+    let started = Instant::now();
+    let params = MappingParams {
+        cell: args.cell,
+        keep_top: args.keep_top,
+        min_of_max: args.min_of_max,
+        peak_radius: args.peak_radius,
+    };
+    params.validate()?;
+    let echoes = read_echoes(&args.echoes)?;
+    if echoes.is_empty() {
+        bail!("{}: no echoes (the file has a header but no rows)", args.echoes.display());
+    }
+    let obstacles: Vec<Obstacle> = match &args.scene {
+        Some(p) => load_scene(p)?.explicit_obstacles().map_err(|e| anyhow!("{}: {e}", p.display()))?,
+        None => Vec::new(),
+    };
+    let bounds = match args.bounds {
+        Some(b) => b,
+        None => {
+            let extra: Vec<(Point, Point)> = obstacles.iter().map(|o| o.shape.bbox()).collect();
+            covering_bounds(&echoes, &extra, params.cell).context("cannot derive bounds from the echoes")?
+        }
+    };
+    let spec = GridSpec::from_bounds(bounds, params.cell, DEFAULT_MEMORY_CAP_BYTES)?;
+    let outcome = map_echoes(&echoes, spec, params)?;
+    let points: Vec<Point> = outcome.highlights.iter().map(|h| h.pos).collect();
+    let (sources, listeners) = foci(&echoes);
+
+    let mut out = Staged::new(&args.out)?;
+    out.write("highlights.csv", highlights_csv(&outcome.highlights))?;
+    let png = out.path("map.png");
+    render_map(
+        &png,
+        &MapPlot {
+            title: format!("{} echoes, {} highlights", echoes.len(), outcome.highlights.len()),
+            grid: outcome.mapper.grid(),
+            highlights: &outcome.highlights,
+            sources: &sources,
+            listener_positions: &listeners,
+            listener_radius_m: None,
+            obstacles: &obstacles,
+        },
+    )?;
+    let mut summary = json!({
+        "n_echoes": echoes.len(),
+        "n_highlights": outcome.highlights.len(),
+        "cells_updated": outcome.mapper.cells_updated(),
+        "grid": { "bounds": [spec.x_min_m, spec.y_min_m, spec.x_max_m(), spec.y_max_m()], "nx": spec.nx, "ny": spec.ny },
+        "mapping": params,
+    });
+    if args.scene.is_some() {
+        summary["score_obstacle"] = json!(score_obstacle(&obstacles, &points));
+        summary["score_highlight"] = json!(score_highlight(&obstacles, &points));
+    }
+    summary["elapsed_s"] = json!(started.elapsed().as_secs_f64());
+    out.write("summary.json", serde_json::to_string_pretty(&summary)? + "\n")?;
+    let dir = out.commit()?;
+    println!(
+        "{} echoes -> {} highlights in {:.3} s; wrote {}",
+        echoes.len(),
+        outcome.highlights.len(),
+        started.elapsed().as_secs_f64(),
+        dir.display()
+    );
+    if let (Some(so), Some(sh)) = (summary.get("score_obstacle"), summary.get("score_highlight")) {
+        println!("score_obstacle = {so}, score_highlight = {sh}");
+    }
+    Ok(())
+}

@@ -1,0 +1,151 @@
+//! End-to-end tests of the `chirpmap` binary.
+
+use chirpmap_core::geometry::{point_segment_distance, specular_point_on_circle};
+use chirpmap_core::{Circle, Point};
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn bin() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_chirpmap"))
+}
+
+fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+fn run(args: &[&str]) -> Output {
+    bin().args(args).output().expect("spawn chirpmap")
+}
+
+fn circles() -> Vec<Circle> {
+    [(-10.0, -20.0, 3.0), (6.0, -26.0, 4.0), (14.0, -14.0, 2.5)]
+        .iter()
+        .map(|&(x, y, r)| Circle::new(Point::new(x, y), r).unwrap())
+        .collect()
+}
+
+/// Echoes computed exactly by specular-reflection geometry: a listener at
+/// y = 10 m passing x = −20 … 20 m in 0.1 m steps above a source at the
+/// origin, one echo per visible specular point per pose (paths that another
+/// circle blocks are dropped).
+fn exact_echoes_csv() -> String {
+    let cs = circles();
+    let source = Point::new(0.0, 0.0);
+    let mut s = String::from("source_x,source_y,listener_x,listener_y,delta_d,weight,t,listener\n");
+    for k in 0..=400 {
+        let listener = Point::new(-20.0 + 0.1 * f64::from(k), 10.0);
+        for (n, c) in cs.iter().enumerate() {
+            let Some(p) = specular_point_on_circle(source, listener, c) else { continue };
+            let blocked = cs.iter().enumerate().any(|(m, o)| {
+                m != n
+                    && (point_segment_distance(o.center, source, p) <= o.radius_m
+                        || point_segment_distance(o.center, p, listener) <= o.radius_m)
+            });
+            if blocked {
+                continue;
+            }
+            let dd = p.dist(source) + p.dist(listener) - listener.dist(source);
+            let _ = writeln!(s, "0,0,{:.1},10,{dd:.6},1,{:.2},0", listener.x, f64::from(k) * 0.01);
+        }
+    }
+    s
+}
+
+#[test]
+fn example_echoes_are_the_exact_specular_echoes() {
+    let path = repo().join("examples/three-circles/echoes.csv");
+    let want = exact_echoes_csv();
+    if std::env::var_os("CHIRPMAP_BLESS").is_some() {
+        std::fs::write(&path, &want).unwrap();
+    }
+    let have = std::fs::read_to_string(&path).unwrap();
+    assert_eq!(have, want, "examples/three-circles/echoes.csv is stale; rerun with CHIRPMAP_BLESS=1");
+}
+
+fn read_highlights(dir: &Path) -> Vec<Point> {
+    let text = std::fs::read_to_string(dir.join("highlights.csv")).unwrap();
+    let mut lines = text.lines();
+    assert_eq!(lines.next(), Some("x,y,value"));
+    lines
+        .map(|l| {
+            let v: Vec<f64> = l.split(',').map(|x| x.parse().unwrap()).collect();
+            Point::new(v[0], v[1])
+        })
+        .collect()
+}
+
+#[test]
+fn map_finds_each_of_three_circles_from_exact_echoes() {
+    let tmp = tempfile::tempdir().unwrap();
+    let echoes = tmp.path().join("echoes.csv");
+    std::fs::write(&echoes, exact_echoes_csv()).unwrap();
+    let out = tmp.path().join("out");
+    let scene = repo().join("examples/three-circles/scene.toml");
+    let o = run(&["map", "--echoes", echoes.to_str().unwrap(), "--out", out.to_str().unwrap(), "--scene", scene.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let hs = read_highlights(&out);
+    for c in circles() {
+        let best = hs.iter().map(|h| (h.dist(c.center) - c.radius_m).abs()).fold(f64::INFINITY, f64::min);
+        assert!(best <= 0.5, "no highlight within 0.5 m of circle {c:?}: best {best} among {hs:?}");
+    }
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["n_highlights"].as_u64().unwrap() as usize, hs.len());
+    assert!(summary["n_echoes"].as_u64().unwrap() > 800);
+    assert!(summary["elapsed_s"].as_f64().unwrap() > 0.0);
+    assert!(summary["score_obstacle"].as_f64().unwrap() > 0.9, "{summary}");
+    assert!(summary["score_highlight"].as_f64().unwrap() > 0.0);
+    let png = std::fs::read(out.join("map.png")).unwrap();
+    assert_eq!(&png[1..4], b"PNG");
+    // Nothing staged is left behind.
+    let names: Vec<String> =
+        std::fs::read_dir(&out).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    assert_eq!(names.len(), 3, "{names:?}");
+}
+
+#[test]
+fn bad_input_fails_cleanly_without_output() {
+    let tmp = tempfile::tempdir().unwrap();
+    let head = "source_x,source_y,listener_x,listener_y,delta_d\n";
+    let cases: Vec<(&str, Vec<u8>, &str)> = vec![
+        ("missing column", b"source_x,source_y,listener_x,delta_d\n0,0,1,2\n".to_vec(), ":1: missing column `listener_y`"),
+        ("not a number", format!("{head}0,0,1,1,2\n0,0,1,x,2\n").into_bytes(), ":3: `listener_y`"),
+        ("nan", format!("{head}0,0,1,1,nan\n").into_bytes(), ":2: `delta_d` = \"nan\" is not finite"),
+        ("negative", format!("{head}0,0,1,1,-3\n").into_bytes(), ":2: delta_d must be >= 0"),
+        ("same point", format!("{head}2,2,2,2,3\n").into_bytes(), ":2: source and listener coincide"),
+        ("empty", head.as_bytes().to_vec(), "no echoes"),
+        ("garbage", (0u8..=255).cycle().take(3000).collect(), ""),
+        ("huge", format!("{head}0,0,1,1,1e9\n").into_bytes(), "more than the cap"),
+    ];
+    for (name, bytes, want) in cases {
+        let f = tmp.path().join(format!("{name}.csv"));
+        std::fs::write(&f, bytes).unwrap();
+        let out = tmp.path().join(format!("out-{name}"));
+        let o = run(&["map", "--echoes", f.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{name}: {err}");
+        assert!(err.contains(want), "{name}: {err:?} lacks {want:?}");
+        assert!(err.contains(f.file_name().unwrap().to_str().unwrap()) || name == "huge", "{name}: {err}");
+        assert!(!err.contains("panicked"), "{name}: {err}");
+        assert!(!out.exists(), "{name}: output directory was left behind");
+    }
+    let o = run(&["map", "--echoes", "/nonexistent.csv", "--out", tmp.path().join("x").to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("/nonexistent.csv"));
+    let o = run(&["map", "--echoes", "a.csv", "--out", "x", "--bounds", "1,2,0,3"]);
+    assert_eq!(o.status.code(), Some(2), "clap rejects bad bounds");
+}
+
+#[test]
+fn explicit_bounds_and_params_are_honoured() {
+    let tmp = tempfile::tempdir().unwrap();
+    let f = tmp.path().join("e.csv");
+    std::fs::write(&f, "source_x,source_y,listener_x,listener_y,delta_d\n0,0,4,0,2\n").unwrap();
+    let out = tmp.path().join("o");
+    let o = run(&["map", "--echoes", f.to_str().unwrap(), "--out", out.to_str().unwrap(), "--bounds", "-10,-10,10,10", "--cell", "0.5"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let s: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(s["grid"]["nx"], 40);
+    assert_eq!(s["mapping"]["cell"], 0.5);
+}
