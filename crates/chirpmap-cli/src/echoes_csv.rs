@@ -20,9 +20,8 @@ pub fn parse_echoes(reader: impl Read, name: &str) -> Result<Vec<Echo>> {
     let col = |h: &str| headers.iter().position(|c| c == h);
     let mut idx = [0usize; 5];
     for (k, h) in REQUIRED.iter().enumerate() {
-        idx[k] = col(h).ok_or_else(|| {
-            anyhow!("{name}:1: missing column `{h}` (header must include {})", REQUIRED.join(","))
-        })?;
+        idx[k] = col(h)
+            .ok_or_else(|| anyhow!("{name}:1: missing column `{h}` (header must include {})", REQUIRED.join(",")))?;
     }
     let (i_w, i_t, i_l) = (col("weight"), col("t"), col("listener"));
     let mut echoes = Vec::new();

@@ -38,7 +38,8 @@ impl Staged {
     pub fn commit(mut self) -> Result<PathBuf> {
         for f in &self.files {
             let (from, to) = (self.staging.join(f), self.dir.join(f));
-            std::fs::rename(&from, &to).with_context(|| format!("cannot move {} to {}", from.display(), to.display()))?;
+            std::fs::rename(&from, &to)
+                .with_context(|| format!("cannot move {} to {}", from.display(), to.display()))?;
         }
         std::fs::remove_dir_all(&self.staging).ok();
         self.committed = true;

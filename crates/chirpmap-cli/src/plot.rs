@@ -151,7 +151,9 @@ pub fn render_map(path: &Path, plot: &MapPlot) -> Result<()> {
             .legend(|(x, y)| Circle::new((x + 8, y), 3, GREEN.filled()));
         if let (Some(r), Some(p)) = (plot.listener_radius_m, plot.listener_positions.first()) {
             let c = Shape::Circle(chirpmap_core::Circle { center: *p, radius_m: r.max(1e-9) });
-            chart.draw_series(std::iter::once(PathElement::new(outline(&c), GREEN.stroke_width(2)))).map_err(plot_err)?;
+            chart
+                .draw_series(std::iter::once(PathElement::new(outline(&c), GREEN.stroke_width(2))))
+                .map_err(plot_err)?;
         }
     }
     if !plot.sources.is_empty() {

@@ -1,4 +1,5 @@
 //! End-to-end tests of the `chirpmap` binary.
+#![allow(clippy::unwrap_used)] // Tests may panic on broken fixtures.
 
 use chirpmap_core::geometry::{point_segment_distance, specular_point_on_circle};
 use chirpmap_core::{Circle, Point};
@@ -82,7 +83,15 @@ fn map_finds_each_of_three_circles_from_exact_echoes() {
     std::fs::write(&echoes, exact_echoes_csv()).unwrap();
     let out = tmp.path().join("out");
     let scene = repo().join("examples/three-circles/scene.toml");
-    let o = run(&["map", "--echoes", echoes.to_str().unwrap(), "--out", out.to_str().unwrap(), "--scene", scene.to_str().unwrap()]);
+    let o = run(&[
+        "map",
+        "--echoes",
+        echoes.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--scene",
+        scene.to_str().unwrap(),
+    ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let hs = read_highlights(&out);
     for c in circles() {
@@ -109,7 +118,11 @@ fn bad_input_fails_cleanly_without_output() {
     let tmp = tempfile::tempdir().unwrap();
     let head = "source_x,source_y,listener_x,listener_y,delta_d\n";
     let cases: Vec<(&str, Vec<u8>, &str)> = vec![
-        ("missing column", b"source_x,source_y,listener_x,delta_d\n0,0,1,2\n".to_vec(), ":1: missing column `listener_y`"),
+        (
+            "missing column",
+            b"source_x,source_y,listener_x,delta_d\n0,0,1,2\n".to_vec(),
+            ":1: missing column `listener_y`",
+        ),
         ("not a number", format!("{head}0,0,1,1,2\n0,0,1,x,2\n").into_bytes(), ":3: `listener_y`"),
         ("nan", format!("{head}0,0,1,1,nan\n").into_bytes(), ":2: `delta_d` = \"nan\" is not finite"),
         ("negative", format!("{head}0,0,1,1,-3\n").into_bytes(), ":2: delta_d must be >= 0"),
@@ -143,9 +156,20 @@ fn explicit_bounds_and_params_are_honoured() {
     let f = tmp.path().join("e.csv");
     std::fs::write(&f, "source_x,source_y,listener_x,listener_y,delta_d\n0,0,4,0,2\n").unwrap();
     let out = tmp.path().join("o");
-    let o = run(&["map", "--echoes", f.to_str().unwrap(), "--out", out.to_str().unwrap(), "--bounds", "-10,-10,10,10", "--cell", "0.5"]);
+    let o = run(&[
+        "map",
+        "--echoes",
+        f.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--bounds",
+        "-10,-10,10,10",
+        "--cell",
+        "0.5",
+    ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let s: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let s: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
     assert_eq!(s["grid"]["nx"], 40);
     assert_eq!(s["mapping"]["cell"], 0.5);
 }

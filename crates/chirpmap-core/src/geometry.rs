@@ -365,19 +365,24 @@ pub fn specular_point_on_circle(source: Point, listener: Point, circle: &Circle)
         let p = c + Point::from_angle(phi) * r;
         p.dist(source) + p.dist(listener)
     };
-    // Coarse scan for the global minimum, then golden-section refinement.
+    // Coarse scan for the global minimum, then bisection on the derivative of
+    // the path length (zero where incidence equals reflection).
     const N: usize = 720;
     let step = std::f64::consts::TAU / N as f64;
     let k_best = (0..N).min_by(|&a, &b| path(a as f64 * step).total_cmp(&path(b as f64 * step)))?;
+    let slope = |phi: f64| {
+        let u = Point::from_angle(phi);
+        let p = c + u * r;
+        let tangent = Point::new(-u.y, u.x);
+        ((p - source).normalized() + (p - listener).normalized()).dot(tangent)
+    };
     let (mut lo, mut hi) = ((k_best as f64 - 1.0) * step, (k_best as f64 + 1.0) * step);
-    let g = 0.5 * (5f64.sqrt() - 1.0);
-    for _ in 0..100 {
-        let m1 = hi - g * (hi - lo);
-        let m2 = lo + g * (hi - lo);
-        if path(m1) < path(m2) {
-            hi = m2;
+    for _ in 0..200 {
+        let mid = 0.5 * (lo + hi);
+        if slope(mid) > 0.0 {
+            hi = mid;
         } else {
-            lo = m1;
+            lo = mid;
         }
     }
     Some(c + Point::from_angle(0.5 * (lo + hi)) * r)

@@ -60,7 +60,7 @@ impl GridSpec {
     pub fn cell_of(&self, p: Point) -> Option<(usize, usize)> {
         let i = ((p.x - self.x_min_m) / self.cell_m).floor();
         let j = ((p.y - self.y_min_m) / self.cell_m).floor();
-        (i >= 0.0 && j >= 0.0 && (i as usize) < self.nx && (j as usize) < self.ny).then(|| (i as usize, j as usize))
+        (i >= 0.0 && j >= 0.0 && (i as usize) < self.nx && (j as usize) < self.ny).then_some((i as usize, j as usize))
     }
 }
 

@@ -233,11 +233,11 @@ mod tests {
         for r in [0, 1, 5, 50, 200] {
             let mut got = vec![0.0; vals.len()];
             sliding_max(vals.iter().copied(), vals.len(), r, |i, v| got[i] = v);
-            for i in 0..vals.len() {
+            for (i, g) in got.iter().enumerate() {
                 let lo = i.saturating_sub(r);
                 let hi = (i + r).min(vals.len() - 1);
                 let want = vals[lo..=hi].iter().copied().fold(f64::MIN, f64::max);
-                assert_eq!(got[i], want, "r={r} i={i}");
+                assert_eq!(*g, want, "r={r} i={i}");
             }
         }
     }

@@ -18,60 +18,75 @@ use crate::grid::GridSpec;
 /// every run of cells the ellipse enters. Spans never overlap.
 pub fn for_each_entered_span(e: &Ellipse, spec: &GridSpec, mut span: impl FnMut(usize, usize, usize)) {
     let (qa, qb, qc, _) = e.conic();
-    let (hx, hy) = (qc.sqrt(), qa.sqrt());
-    let w = spec.cell_m;
-    // Grid-relative centre, so cell indices are floor(coordinate / w).
-    let cx = e.center.x - spec.x_min_m;
-    let cy = e.center.y - spec.y_min_m;
+    let inv_w = 1.0 / spec.cell_m;
+    // Everything below is in cell units relative to the ellipse centre, so a
+    // cell index is floor(centre + offset) with no division in the loop.
+    let (hx, hy) = (qc.sqrt() * inv_w, qa.sqrt() * inv_w);
+    let cx = (e.center.x - spec.x_min_m) * inv_w;
+    let cy = (e.center.y - spec.y_min_m) * inv_w;
     let (nx, ny) = (spec.nx as i64, spec.ny as i64);
-    if cx + hx < 0.0 || cy + hy < 0.0 || cx - hx >= nx as f64 * w || cy - hy >= ny as f64 * w {
+    if cx + hx < 0.0 || cy + hy < 0.0 || cx - hx >= nx as f64 || cy - hy >= ny as f64 {
         return;
     }
-    let j_first = ((cy - hy) / w).floor().max(0.0) as i64;
-    let j_last = (((cy + hy) / w).floor() as i64).min(ny - 1);
-    // y (relative to the centre) of the rightmost point (hx, y_r); the
-    // leftmost is (−hx, −y_r). From ∂Q/∂y = B x + 2 C y = 0.
+    let j_first = floor_i64(cy - hy).max(0);
+    let j_last = floor_i64(cy + hy).min(ny - 1);
+    // y of the rightmost point (hx, y_r); the leftmost is (−hx, −y_r).
+    // From ∂Q/∂y = B x + 2 C y = 0.
     let y_right = if qc > 0.0 { -qb * hx / (2.0 * qc) } else { 0.0 };
-    let two_ab = 2.0 * e.semi_major_m * e.semi_minor_m;
-    // Left and right x (relative to the centre) where the curve crosses the
-    // horizontal line at relative height y: roots of A x² + B y x + C y² + F,
-    // whose discriminant simplifies to 4a²b²(A − y²).
+    // Where the curve crosses the horizontal line at height y: the roots of
+    // A x² + B y x + C y² + F, whose discriminant simplifies to 4a²b²(A − y²):
+    // x = k_mid·y ± k_half·sqrt(A − y²).
+    let (k_mid, k_half) = if qa > 0.0 { (-qb / (2.0 * qa), e.semi_major_m * e.semi_minor_m / qa) } else { (0.0, 0.0) };
+    let qa_c = qa * inv_w * inv_w;
     let crossing = |y: f64| -> Option<(f64, f64)> {
-        let t = qa - y * y;
-        if t < 0.0 || qa <= 0.0 {
+        let t = qa_c - y * y;
+        if t < 0.0 || qa_c <= 0.0 {
             return None;
         }
-        let mid = -qb * y / (2.0 * qa);
-        let half = two_ab * t.sqrt() / (2.0 * qa);
-        Some(((mid - half).clamp(-hx, hx), (mid + half).clamp(-hx, hx)))
+        let mid = k_mid * y;
+        let half = k_half * t.sqrt();
+        Some(((mid - half).max(-hx), (mid + half).min(hx)))
     };
-    let col = |x: f64| ((cx + x) / w).floor() as i64;
+    let last_col = nx - 1;
     let emit = |x_lo: f64, x_hi: f64| -> Option<(i64, i64)> {
-        let (lo, hi) = (col(x_lo).max(0), col(x_hi).min(nx - 1));
+        let (lo, hi) = (floor_i64(cx + x_lo).max(0), floor_i64(cx + x_hi).min(last_col));
         (lo <= hi).then_some((lo, hi))
     };
-    let mut below = crossing(j_first as f64 * w - cy);
+    let mut below = crossing(j_first as f64 - cy);
     for j in j_first..=j_last {
-        let yb = j as f64 * w - cy;
-        let yt = yb + w;
+        let yb = j as f64 - cy;
+        let yt = yb + 1.0;
         let above = crossing(yt);
         let in_band = |y: f64| yb <= y && y < yt;
         let left_x = if in_band(-y_right) { -hx } else { f64::INFINITY };
         let right_x = if in_band(y_right) { hx } else { f64::NEG_INFINITY };
-        let spans = match (below, above) {
+        let row = j as usize;
+        match (below, above) {
             (Some((bl, br)), Some((tl, tr))) => {
                 let l = emit(bl.min(tl).min(left_x), bl.max(tl));
                 let r = emit(br.min(tr), br.max(tr).max(right_x));
                 match (l, r) {
-                    (Some((l0, l1)), Some((r0, r1))) if l1 >= r0 => [Some((l0.min(r0), l1.max(r1))), None],
-                    other => [other.0, other.1],
+                    (Some((l0, l1)), Some((r0, r1))) if l1 >= r0 => span(row, l0.min(r0) as usize, l1.max(r1) as usize),
+                    (l, r) => {
+                        if let Some((lo, hi)) = l {
+                            span(row, lo as usize, hi as usize);
+                        }
+                        if let Some((lo, hi)) = r {
+                            span(row, lo as usize, hi as usize);
+                        }
+                    }
                 }
             }
-            (Some((l, r)), None) | (None, Some((l, r))) => [emit(l.min(left_x), r.max(right_x)), None],
-            (None, None) => [emit(-hx, hx), None],
-        };
-        for (lo, hi) in spans.into_iter().flatten() {
-            span(j as usize, lo as usize, hi as usize);
+            (Some((l, r)), None) | (None, Some((l, r))) => {
+                if let Some((lo, hi)) = emit(l.min(left_x), r.max(right_x)) {
+                    span(row, lo as usize, hi as usize);
+                }
+            }
+            (None, None) => {
+                if let Some((lo, hi)) = emit(-hx, hx) {
+                    span(row, lo as usize, hi as usize);
+                }
+            }
         }
         below = above;
     }
@@ -121,6 +136,14 @@ pub fn entered_cells_literal(e: &Ellipse, spec: &GridSpec, mut cell: impl FnMut(
             }
         }
     }
+}
+
+/// `floor` as an integer without a libm call: on baseline x86-64 (no SSE4.1)
+/// `f64::floor` is a function call, and it sits in the per-row hot path.
+#[inline]
+fn floor_i64(v: f64) -> i64 {
+    let t = v as i64;
+    t - i64::from((t as f64) > v)
 }
 
 /// Liang–Barsky: does the segment a→b meet the closed box?

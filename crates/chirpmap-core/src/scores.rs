@@ -8,11 +8,7 @@ fn inverse_capped(d: f64) -> f64 {
 }
 
 fn nearest_obstacle(obstacles: &[Obstacle], p: Point) -> Option<(usize, f64)> {
-    obstacles
-        .iter()
-        .enumerate()
-        .map(|(k, o)| (k, o.surface_distance(p)))
-        .min_by(|a, b| a.1.total_cmp(&b.1))
+    obstacles.iter().enumerate().map(|(k, o)| (k, o.surface_distance(p))).min_by(|a, b| a.1.total_cmp(&b.1))
 }
 
 /// False-negative score: each highlight is assigned to its nearest obstacle
@@ -43,11 +39,8 @@ pub fn score_highlight(obstacles: &[Obstacle], highlights: &[Point]) -> Option<f
     if highlights.is_empty() {
         return Some(0.0);
     }
-    let total: f64 = highlights
-        .iter()
-        .filter_map(|&h| nearest_obstacle(obstacles, h))
-        .map(|(_, d)| inverse_capped(d))
-        .sum();
+    let total: f64 =
+        highlights.iter().filter_map(|&h| nearest_obstacle(obstacles, h)).map(|(_, d)| inverse_capped(d)).sum();
     Some(total / highlights.len() as f64)
 }
 
