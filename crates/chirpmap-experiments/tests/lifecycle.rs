@@ -1,0 +1,132 @@
+//! Resume, sharding and merge with a deterministic stand-in for the simulator.
+
+use chirpmap_core::Scene;
+use chirpmap_experiments::driver::{merge, run_sweep};
+use chirpmap_experiments::{ExperimentError, RunMetrics, Shard, SweepDef};
+use std::path::Path;
+
+const SWEEP: &str = r#"
+name = "fake"
+runs = 7
+seed = 3
+[[params]]
+name = "n_obstacles"
+path = "random_obstacles.count"
+values = [1, 2, 3]
+[[params]]
+name = "pattern"
+path = "listeners.0.speed"
+values = [10.0, 5.0]
+labels = ["base", "slow"]
+baseline = "base"
+"#;
+
+/// Deterministic in (scene, run), like the simulator.
+fn fake(scene: &Scene, run: u64) -> Result<RunMetrics, String> {
+    let n = f64::from(scene.random_obstacles.count);
+    let x = ((run * 2654435761 + scene.seed) % 1000) as f64 / 1000.0;
+    Ok(RunMetrics {
+        score_obstacle: Some(x / n),
+        score_highlight: Some(1.0 - x / scene.listeners[0].speed),
+        n_highlights: run as usize,
+        n_echoes: 10 * run as usize,
+    })
+}
+
+fn strip_elapsed(path: &Path) -> Vec<String> {
+    std::fs::read_to_string(path).unwrap().lines().map(|l| l.rsplit_once(',').unwrap().0.to_string()).collect()
+}
+
+#[test]
+fn interrupted_sweep_resumes_without_loss_or_duplicates() {
+    let plan = SweepDef::from_toml_str(SWEEP).unwrap().plan(|_| Ok(())).unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let full = tmp.path().join("full");
+    let o = run_sweep(&plan, &full, Shard::ALL, 2, fake, |_, _| {}).unwrap();
+    assert_eq!(o.rows.len(), 42);
+
+    // Interrupt after 10 runs (the run function fails), leaving a partial line.
+    let cut = tmp.path().join("cut");
+    let count = std::sync::atomic::AtomicUsize::new(0);
+    let r = run_sweep(
+        &plan,
+        &cut,
+        Shard::ALL,
+        1,
+        |s, run| {
+            if count.fetch_add(1, std::sync::atomic::Ordering::SeqCst) >= 10 {
+                Err("killed".into())
+            } else {
+                fake(s, run)
+            }
+        },
+        |_, _| {},
+    );
+    assert!(matches!(r, Err(ExperimentError::RunFailed { .. })));
+    let runs = cut.join("runs.csv");
+    let n_lines = std::fs::read_to_string(&runs).unwrap().lines().count();
+    assert_eq!(n_lines, 11, "header + 10 streamed rows");
+    let mut f = std::fs::OpenOptions::new().append(true).open(&runs).unwrap();
+    std::io::Write::write_all(&mut f, b"3,2,slow,4,3,0.1").unwrap(); // torn write
+    drop(f);
+    let o = run_sweep(&plan, &cut, Shard::ALL, 2, fake, |_, _| {}).unwrap();
+    assert_eq!((o.resumed, o.executed), (10, 32));
+    assert_eq!(strip_elapsed(&runs), strip_elapsed(&full.join("runs.csv")));
+    assert_eq!(
+        std::fs::read_to_string(cut.join("summary.csv")).unwrap(),
+        std::fs::read_to_string(full.join("summary.csv")).unwrap()
+    );
+    // Running again does nothing.
+    let o = run_sweep(&plan, &cut, Shard::ALL, 2, fake, |_, _| {}).unwrap();
+    assert_eq!((o.resumed, o.executed), (42, 0));
+}
+
+#[test]
+fn sharded_and_merged_equals_unsharded() {
+    let def = SweepDef::from_toml_str(SWEEP).unwrap();
+    let plan = def.plan(|_| Ok(())).unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let full = tmp.path().join("full");
+    run_sweep(&plan, &full, Shard::ALL, 1, fake, |_, _| {}).unwrap();
+    let dirs: Vec<_> = (0..3).map(|i| tmp.path().join(format!("s{i}"))).collect();
+    for (i, d) in dirs.iter().enumerate() {
+        run_sweep(&plan, d, Shard { index: i, count: 3 }, 2, fake, |_, _| {}).unwrap();
+    }
+    let merged = tmp.path().join("merged");
+    let inputs: Vec<&Path> = dirs.iter().map(|d| d.as_path()).collect();
+    let (o, report) = merge(&inputs, &merged, |d| d.plan(|_| Ok(()))).unwrap();
+    assert!(report.missing.is_empty() && report.duplicated.is_empty());
+    assert_eq!(o.rows.len(), 42);
+    assert_eq!(strip_elapsed(&merged.join("runs.csv")), strip_elapsed(&full.join("runs.csv")));
+    let md = std::fs::read_to_string(merged.join("summary.md")).unwrap();
+    assert_eq!(md, std::fs::read_to_string(full.join("summary.md")).unwrap());
+    assert!(md.contains("Δ score_obstacle vs base"), "{md}");
+
+    // Missing shard is reported; duplicated shard is reported.
+    let (_, report) = merge(&inputs[..2], &tmp.path().join("m2"), |d| d.plan(|_| Ok(()))).unwrap();
+    assert_eq!(report.missing.len(), 14);
+    let dup = [inputs[0], inputs[0], inputs[1], inputs[2]];
+    let (_, report) = merge(&dup, &tmp.path().join("m3"), |d| d.plan(|_| Ok(()))).unwrap();
+    assert_eq!(report.duplicated.len(), 14);
+}
+
+#[test]
+fn foreign_directories_are_refused() {
+    let def = SweepDef::from_toml_str(SWEEP).unwrap();
+    let plan = def.plan(|_| Ok(())).unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path().join("a");
+    run_sweep(&plan, &d, Shard { index: 0, count: 2 }, 1, fake, |_, _| {}).unwrap();
+    // Other seed into the same directory.
+    let other = SweepDef::from_toml_str(&SWEEP.replace("seed = 3", "seed = 4")).unwrap().plan(|_| Ok(())).unwrap();
+    let e = run_sweep(&other, &d, Shard { index: 0, count: 2 }, 1, fake, |_, _| {}).unwrap_err().to_string();
+    assert!(e.contains("different sweep"), "{e}");
+    // Other shard into the same directory.
+    let e = run_sweep(&plan, &d, Shard { index: 1, count: 2 }, 1, fake, |_, _| {}).unwrap_err().to_string();
+    assert!(e.contains("holds shard 0/2"), "{e}");
+    // Merging different seeds.
+    let d2 = tmp.path().join("b");
+    run_sweep(&other, &d2, Shard { index: 1, count: 2 }, 1, fake, |_, _| {}).unwrap();
+    let e = merge(&[d.as_path(), d2.as_path()], &tmp.path().join("m"), |d| d.plan(|_| Ok(()))).unwrap_err();
+    assert!(e.to_string().contains("different seed"), "{e}");
+}
