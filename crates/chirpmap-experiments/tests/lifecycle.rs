@@ -1,4 +1,5 @@
 //! Resume, sharding and merge with a deterministic stand-in for the simulator.
+#![allow(clippy::unwrap_used)] // Tests may panic on broken fixtures.
 
 use chirpmap_core::Scene;
 use chirpmap_experiments::driver::{merge, run_sweep};
