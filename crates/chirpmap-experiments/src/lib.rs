@@ -9,6 +9,7 @@
 
 pub mod driver;
 pub mod error;
+pub mod presets;
 pub mod runner;
 pub mod runs;
 pub mod stats;
