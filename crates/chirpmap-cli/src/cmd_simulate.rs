@@ -137,7 +137,18 @@ fn trajectory_points(r: &Resolved) -> Vec<Point> {
     pts
 }
 
-fn peak_rows(r: &Resolved, m: &Measurement) -> Vec<(f64, f64, f64, f64, &'static str, Option<f64>)> {
+/// A peak of one measurement, classified against its direct peak.
+#[derive(Debug)]
+struct PeakRow {
+    f_hz: f64,
+    intensity: f64,
+    lo_hz: f64,
+    hi_hz: f64,
+    kind: &'static str,
+    delta_d_m: Option<f64>,
+}
+
+fn peak_rows(r: &Resolved, m: &Measurement) -> Vec<PeakRow> {
     m.peaks
         .iter()
         .enumerate()
@@ -150,7 +161,7 @@ fn peak_rows(r: &Resolved, m: &Measurement) -> Vec<(f64, f64, f64, f64, &'static
                 },
                 None => ("unpaired", None),
             };
-            (p.f_hz, p.intensity, p.lo_hz, p.hi_hz, kind, dd)
+            PeakRow { f_hz: p.f_hz, intensity: p.intensity, lo_hz: p.lo_hz, hi_hz: p.hi_hz, kind, delta_d_m: dd }
         })
         .collect()
 }
@@ -171,16 +182,24 @@ fn write_spectra(staged: &mut Staged, r: &Resolved, out: &SimOutput) -> Result<(
                 lo + BIN_HZ
             );
         }
-        for (f, i, lo, hi, kind, dd) in peak_rows(r, m) {
-            let dd = dd.map(|d| d.to_string()).unwrap_or_default();
-            let _ = writeln!(peaks, "{},{},{f},{i},{lo},{hi},{kind},{dd}", m.listener_id, m.t_s);
+        for p in peak_rows(r, m) {
+            let dd = p.delta_d_m.map(|d| d.to_string()).unwrap_or_default();
+            let _ = writeln!(
+                peaks,
+                "{},{},{},{},{},{},{},{dd}",
+                m.listener_id, m.t_s, p.f_hz, p.intensity, p.lo_hz, p.hi_hz, p.kind
+            );
         }
     }
     staged.write("spectra.csv", spectra)?;
     staged.write("peaks.csv", peaks)?;
     // The measurement with the most echoes (the first one on ties) shows the method best.
-    let echoes_of = |m: &Measurement| peak_rows(r, m).iter().filter(|p| p.4 == "reflected").count();
-    let best = out.measurements.iter().filter(|m| m.direct.is_some()).max_by_key(|m| (echoes_of(m), std::cmp::Reverse(m.tick)));
+    let echoes_of = |m: &Measurement| peak_rows(r, m).iter().filter(|p| p.kind == "reflected").count();
+    let best = out
+        .measurements
+        .iter()
+        .filter(|m| m.direct.is_some())
+        .max_by_key(|m| (echoes_of(m), std::cmp::Reverse(m.tick)));
     let (f_a, f_b) = (r.sweep.f_start_hz(), r.sweep.f_end_hz());
     let f_range_hz = (f_a.min(f_b) - 100.0, f_a.max(f_b) + 100.0);
     let png = staged.path("spectrum.png");
@@ -188,7 +207,7 @@ fn write_spectra(staged: &mut Staged, r: &Resolved, out: &SimOutput) -> Result<(
         Some(m) => {
             let bins: Vec<(f64, f64)> = m.bins.iter().map(|&(b, v)| (b as f64 * BIN_HZ, v)).collect();
             let rows = peak_rows(r, m);
-            let reflected: Vec<f64> = rows.iter().filter(|p| p.4 == "reflected").map(|p| p.0).collect();
+            let reflected: Vec<f64> = rows.iter().filter(|p| p.kind == "reflected").map(|p| p.f_hz).collect();
             render_spectrum(
                 &png,
                 &SpectrumPlot {

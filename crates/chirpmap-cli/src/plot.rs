@@ -270,9 +270,11 @@ pub fn render_spectrum(path: &Path, plot: &SpectrumPlot) -> Result<()> {
     }
     let grey = RGBColor(30, 30, 30);
     chart
-        .draw_series(plot.bins.iter().map(|&(f, v)| {
-            Rectangle::new([(f, floor), (f + plot.bin_hz.max((f1 - f0) / 800.0), v)], grey.filled())
-        }))
+        .draw_series(
+            plot.bins.iter().map(|&(f, v)| {
+                Rectangle::new([(f, floor), (f + plot.bin_hz.max((f1 - f0) / 800.0), v)], grey.filled())
+            }),
+        )
         .map_err(plot_err)?
         .label("spectrum (10 Hz bins)")
         .legend(move |(x, y)| Rectangle::new([(x, y - 4), (x + 16, y + 4)], grey.filled()));

@@ -12,13 +12,13 @@
 //! every capsule (an angular window seen from the source) fly straight out of
 //! the world unsensed and are skipped without tracing.
 
+use crate::Sensed;
 use crate::analysis::{SimOutput, analyse};
 use crate::physics::{
     T_MIN_M, apply_bounce, capsule_interval, disc_window, emission_dir, nearest_hit, points_window, world_exit_m,
 };
-use crate::trajectory::Capsule;
 use crate::resolve::Resolved;
-use crate::Sensed;
+use crate::trajectory::Capsule;
 use chirpmap_core::{Point, Shape};
 use std::f64::consts::TAU;
 
@@ -172,7 +172,8 @@ fn sense_direct(r: &Resolved, ranges: &mut Vec<(u32, u32)>, out: &mut Vec<Sensed
                             continue;
                         }
                         let exit = world_exit_m(r.source, dir, &r.world);
-                        let end = nearest_hit(&r.obstacles, r.source, dir, T_MIN_M).map_or(exit, |(h, _)| h.t.min(exit));
+                        let end =
+                            nearest_hit(&r.obstacles, r.source, dir, T_MIN_M).map_or(exit, |(h, _)| h.t.min(exit));
                         if sigma < end {
                             out.push(Sensed {
                                 measurement: (l.first_measurement + idx) as u32,

@@ -4,11 +4,11 @@
 //! every alive particle is tested against every measuring listener. This is
 //! how the paper's Matlab simulator works (§II.B).
 
+use crate::Sensed;
 use crate::analysis::{SimOutput, analyse};
 use crate::fast::heard_hz;
 use crate::physics::{T_MIN_M, apply_bounce, emission_dir, nearest_hit, world_exit_m};
 use crate::resolve::Resolved;
-use crate::Sensed;
 use chirpmap_core::Point;
 
 #[derive(Debug, Clone, Copy)]

@@ -86,7 +86,9 @@ fn check_rect(field: &str, r: &[f64; 4]) -> Result<(), SimError> {
     if r.iter().all(|v| v.is_finite()) && r[0] < r[2] && r[1] < r[3] {
         Ok(())
     } else {
-        Err(scene_err(format!("{field} must be [xmin, ymin, xmax, ymax] with finite xmin < xmax, ymin < ymax, got {r:?}")))
+        Err(scene_err(format!(
+            "{field} must be [xmin, ymin, xmax, ymax] with finite xmin < xmax, ymin < ymax, got {r:?}"
+        )))
     }
 }
 
@@ -117,7 +119,13 @@ pub fn shapes_overlap(a: &Shape, b: &Shape) -> bool {
     }
 }
 
-fn build_sampling(field: &str, s: &Sampling, tick_s: f64, last_tick: u64, rng: &mut impl Rng) -> Result<Vec<u64>, SimError> {
+fn build_sampling(
+    field: &str,
+    s: &Sampling,
+    tick_s: f64,
+    last_tick: u64,
+    rng: &mut impl Rng,
+) -> Result<Vec<u64>, SimError> {
     let to_ticks = |ms: f64| ((ms * 1e-3 / tick_s).round() as u64).max(1);
     let mut ticks = Vec::new();
     match (s.period_ms, s.random_ms) {
@@ -133,7 +141,9 @@ fn build_sampling(field: &str, s: &Sampling, tick_s: f64, last_tick: u64, rng: &
             positive(&format!("{field}.random_ms[0]"), lo)?;
             positive(&format!("{field}.random_ms[1]"), hi)?;
             if lo > hi {
-                return Err(scene_err(format!("{field}.random_ms must be [low, high] with low <= high, got [{lo}, {hi}]")));
+                return Err(scene_err(format!(
+                    "{field}.random_ms must be [low, high] with low <= high, got [{lo}, {hi}]"
+                )));
             }
             let mut k = 0u64;
             loop {
@@ -147,7 +157,10 @@ fn build_sampling(field: &str, s: &Sampling, tick_s: f64, last_tick: u64, rng: &
         _ => return Err(scene_err(format!("{field}: give exactly one of `period_ms` or `random_ms`"))),
     }
     if ticks.len() > MAX_MEASUREMENTS {
-        return Err(scene_err(format!("{field}: {} measurements is more than the cap of {MAX_MEASUREMENTS}", ticks.len())));
+        return Err(scene_err(format!(
+            "{field}: {} measurements is more than the cap of {MAX_MEASUREMENTS}",
+            ticks.len()
+        )));
     }
     Ok(ticks)
 }
@@ -258,9 +271,8 @@ pub fn resolve(scene: &Scene) -> Result<Resolved, SimError> {
     }
     resolved_scene.duration_s = Some(duration_s);
 
-    let emit_freq_hz: Vec<f64> = (0..n_emit_ticks)
-        .map(|k| sweep.freq_at(k as f64 * tick_s).unwrap_or_else(|| sweep.f_end_hz()))
-        .collect();
+    let emit_freq_hz: Vec<f64> =
+        (0..n_emit_ticks).map(|k| sweep.freq_at(k as f64 * tick_s).unwrap_or_else(|| sweep.f_end_hz())).collect();
     let mut rng = stream(seeds.emission, 0);
     let slice = std::f64::consts::TAU / f64::from(p.per_tick);
     let emit_offset_rad: Vec<f64> = (0..n_emit_ticks).map(|_| rng.random::<f64>() * slice).collect();
@@ -280,7 +292,13 @@ pub fn resolve(scene: &Scene) -> Result<Resolved, SimError> {
         n_emit_ticks,
         last_tick,
         emit_freq_hz,
-        emit_rot: emit_offset_rad.iter().map(|o| { let (s, c) = o.sin_cos(); (c, s) }).collect(),
+        emit_rot: emit_offset_rad
+            .iter()
+            .map(|o| {
+                let (s, c) = o.sin_cos();
+                (c, s)
+            })
+            .collect(),
         emit_offset_rad,
         dir_table: crate::physics::direction_table(p.per_tick),
         bounce_key: seeds.bounce_key,
@@ -305,7 +323,10 @@ fn random_obstacles(
     positive("random_obstacles.diameter[0]", d_lo)?;
     positive("random_obstacles.diameter[1]", d_hi)?;
     if d_lo > d_hi {
-        return Err(scene_err(format!("random_obstacles.diameter must be [low, high] with low <= high, got {:?}", r.diameter)));
+        return Err(scene_err(format!(
+            "random_obstacles.diameter must be [low, high] with low <= high, got {:?}",
+            r.diameter
+        )));
     }
     check_rect("random_obstacles.region", &r.region)?;
     for (name, v) in [("roughness", r.roughness), ("absorption", r.absorption)] {

@@ -16,8 +16,7 @@ use chirpmap_sim::oracle::{sense_stepped, simulate_stepped};
 use chirpmap_sim::{Sensed, analyse, resolve, sense_fast};
 
 fn small_scene(seed: u64) -> Scene {
-    let mut s = Scene::default();
-    s.seed = seed;
+    let mut s = Scene { seed, ..Scene::default() };
     s.world.bounds = [-35.0, -35.0, 35.0, 35.0];
     s.particles.per_tick = 720;
     s.chirp.duration = 0.15;
@@ -84,11 +83,22 @@ fn tracer_matches_stepper_with_polygons_arcs_doppler_and_two_listeners() {
         ObstacleSpec {
             center: None,
             radius: None,
-            vertices: Some(vec![[-30.0, -25.0], [10.0, -25.0], [10.0, -24.0], [-29.0, -24.0], [-29.0, 5.0], [-30.0, 5.0]]),
+            vertices: Some(vec![
+                [-30.0, -25.0],
+                [10.0, -25.0],
+                [10.0, -24.0],
+                [-29.0, -24.0],
+                [-29.0, 5.0],
+                [-30.0, 5.0],
+            ]),
             roughness: 0.3,
             absorption: 0.1,
         },
-        ObstacleSpec { roughness: 0.0, absorption: 0.5, ..ObstacleSpec::circle(chirpmap_core::Point::new(20.0, 5.0), 3.0) },
+        ObstacleSpec {
+            roughness: 0.0,
+            absorption: 0.5,
+            ..ObstacleSpec::circle(chirpmap_core::Point::new(20.0, 5.0), 3.0)
+        },
     ];
     s.listeners[0].spin_rate = std::f64::consts::FRAC_PI_4;
     s.listeners.push(ListenerSpec {
