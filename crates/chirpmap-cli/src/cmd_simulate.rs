@@ -124,14 +124,15 @@ fn resolved_scene_toml(r: &Resolved) -> String {
     )
 }
 
-/// Listener trajectories sampled every 5 ticks, for the map's path.
+/// Listener trajectories sampled at ~2000 points each, for the map's path.
 fn trajectory_points(r: &Resolved) -> Vec<Point> {
+    let step = (r.last_tick / 2000).max(1);
     let mut pts = Vec::new();
     for l in &r.listeners {
         let mut k = 0;
         while k <= r.last_tick {
             pts.push(l.trajectory.position(r.time_s(k)));
-            k += 5;
+            k += step;
         }
     }
     pts

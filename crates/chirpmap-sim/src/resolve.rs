@@ -18,6 +18,8 @@ pub const BIN_HZ: f64 = 10.0;
 pub const SOURCE_CLEARANCE_M: f64 = 1.0;
 const MAX_PARTICLES: u64 = 2_000_000_000;
 const MAX_MEASUREMENTS: usize = 10_000_000;
+/// Longest run, in ticks (10⁷ ticks = 10⁴ s at 1 ms): a guard against typos, not a physical limit.
+const MAX_TICKS: f64 = 1e7;
 const PLACEMENT_TRIES: u32 = 10_000;
 
 /// One listener's trajectory and measurement instants.
@@ -132,7 +134,7 @@ fn build_sampling(
         (Some(p), None) => {
             let step = to_ticks(positive(&format!("{field}.period_ms"), p)?);
             let mut k = step;
-            while k <= last_tick {
+            while k <= last_tick && ticks.len() <= MAX_MEASUREMENTS {
                 ticks.push(k);
                 k += step;
             }
@@ -148,7 +150,7 @@ fn build_sampling(
             let mut k = 0u64;
             loop {
                 k += to_ticks(lo + (hi - lo) * rng.random::<f64>());
-                if k > last_tick {
+                if k > last_tick || ticks.len() > MAX_MEASUREMENTS {
                     break;
                 }
                 ticks.push(k);
@@ -196,6 +198,13 @@ pub fn resolve(scene: &Scene) -> Result<Resolved, SimError> {
         Some(d) => positive("duration_s", d)?,
         None => chirp_s + far_m / a,
     };
+    for (name, ticks) in [("chirp.duration", chirp_s / tick_s), ("duration_s", duration_s / tick_s)] {
+        if ticks > MAX_TICKS {
+            return Err(scene_err(format!(
+                "{name} is {ticks:.3e} ticks of particles.tick_ms, more than the cap of {MAX_TICKS:e}"
+            )));
+        }
+    }
     let n_emit_ticks = ((chirp_s / tick_s) - 1e-9).ceil().max(1.0) as u64;
     let last_tick = (duration_s / tick_s + 1e-9).floor() as u64;
     if n_emit_ticks.saturating_mul(u64::from(p.per_tick)) > MAX_PARTICLES {
@@ -458,5 +467,7 @@ mod tests {
                 .contains("overlaps")
         );
         assert!(err_of("[random_obstacles]\ncount = 50\ndiameter = [9.0, 10.0]\n").contains("could not place"));
+        assert!(err_of("duration_s = 1e300\n").contains("cap"));
+        assert!(err_of("[particles]\ntick_ms = 1e-12\n").contains("cap"));
     }
 }

@@ -14,6 +14,7 @@ use chirpmap_core::Scene;
 use chirpmap_core::scene::{ListenerSpec, ObstacleSpec, Sampling};
 use chirpmap_sim::oracle::{sense_stepped, simulate_stepped};
 use chirpmap_sim::{Sensed, analyse, resolve, sense_fast};
+use proptest::prelude::*;
 
 fn small_scene(seed: u64) -> Scene {
     let mut s = Scene { seed, ..Scene::default() };
@@ -121,4 +122,40 @@ fn oracle_echoes_equal_fast_echoes_on_default_geometry() {
     let slow = simulate_stepped(&r);
     assert_eq!(fast.echoes, slow.echoes);
     assert!(!fast.echoes.is_empty());
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 6, ..ProptestConfig::default() })]
+
+    /// Random listener motion, radius and sampling, random seeds and obstacles.
+    #[test]
+    fn tracer_matches_stepper_on_random_listeners(
+        seed in 0u64..1000,
+        x in -20.0..20.0f64,
+        y in -5.0..25.0f64,
+        heading in 0.0..360.0f64,
+        spin in -2.0..2.0f64,
+        radius in 0.2..2.0f64,
+        period in 1.0..4.0f64,
+        rough in 0.0..1.0f64,
+        doppler in any::<bool>(),
+    ) {
+        let mut s = small_scene(seed);
+        s.chirp.duration = 0.08;
+        s.particles.doppler = doppler;
+        s.random_obstacles.roughness = rough;
+        s.random_obstacles.region = [-25.0, -30.0, 25.0, -8.0];
+        s.listeners[0] = ListenerSpec {
+            start: [x, y],
+            heading_deg: heading,
+            spin_rate: spin,
+            radius,
+            sampling: Sampling { period_ms: Some(period), random_ms: None },
+            ..ListenerSpec::default()
+        };
+        // Scenes where the generator cannot place obstacles clear of the listener are skipped.
+        if resolve(&s).is_ok() {
+            compare(&s);
+        }
+    }
 }
