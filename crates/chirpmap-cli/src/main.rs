@@ -1,6 +1,7 @@
 //! `chirpmap`: turn sound into maps (see `chirpmap --help`).
 
 mod cmd_map;
+mod cmd_simulate;
 mod echoes_csv;
 mod output;
 mod plot;
@@ -25,6 +26,8 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
+    /// Simulate a scene with the paper's particle model (§II.B), map the echoes, score the map.
+    Simulate(cmd_simulate::SimulateArgs),
     /// Accumulate echo ellipses on a grid (paper Algorithm 1) and extract highlights.
     Map(cmd_map::MapArgs),
 }
@@ -32,6 +35,7 @@ enum Command {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
+        Command::Simulate(args) => cmd_simulate::run(&args),
         Command::Map(args) => cmd_map::run(&args),
     };
     match result {

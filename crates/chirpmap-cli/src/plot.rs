@@ -211,3 +211,81 @@ pub fn render_map(path: &Path, plot: &MapPlot) -> Result<()> {
     root.present().map_err(plot_err)?;
     Ok(())
 }
+
+/// One listener spectrum (paper §II.B: loudness summed per frequency bin) with
+/// its direct and reflected peaks marked.
+#[derive(Debug)]
+pub struct SpectrumPlot<'a> {
+    pub title: String,
+    /// `(bin lower edge Hz, loudness)` of occupied bins.
+    pub bins: &'a [(f64, f64)],
+    pub bin_hz: f64,
+    /// Frequency axis range (Hz).
+    pub f_range_hz: (f64, f64),
+    pub direct_hz: Option<f64>,
+    pub reflected_hz: &'a [f64],
+}
+
+/// Log-scaled loudness so the faint reflected peaks show next to the direct one.
+pub fn render_spectrum(path: &Path, plot: &SpectrumPlot) -> Result<()> {
+    ensure_font();
+    let root = BitMapBackend::new(path, (1000, 500)).into_drawing_area();
+    root.fill(&WHITE).map_err(plot_err)?;
+    let top = plot.bins.iter().map(|b| b.1).fold(0.0, f64::max).max(1e-9) * 2.0;
+    let floor = plot.bins.iter().map(|b| b.1).filter(|v| *v > 0.0).fold(top, f64::min) / 4.0;
+    let (f0, f1) = plot.f_range_hz;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(&plot.title, ("sans-serif", 20))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(70)
+        .build_cartesian_2d(f0..f1, (floor..top).log_scale())
+        .map_err(plot_err)?;
+    chart
+        .configure_mesh()
+        .disable_mesh()
+        .x_desc("frequency (Hz)")
+        .y_desc("summed loudness (log)")
+        .axis_desc_style(("sans-serif", 16))
+        .label_style(("sans-serif", 13))
+        .draw()
+        .map_err(plot_err)?;
+    if let Some(f) = plot.direct_hz {
+        chart
+            .draw_series(std::iter::once(PathElement::new(vec![(f, floor), (f, top)], RED.mix(0.6).stroke_width(3))))
+            .map_err(plot_err)?
+            .label("direct peak")
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], RED.stroke_width(3)));
+    }
+    if !plot.reflected_hz.is_empty() {
+        chart
+            .draw_series(
+                plot.reflected_hz
+                    .iter()
+                    .map(|&f| PathElement::new(vec![(f, floor), (f, top)], BLUE.mix(0.5).stroke_width(2))),
+            )
+            .map_err(plot_err)?
+            .label("reflected peaks (echoes)")
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], BLUE.stroke_width(2)));
+    }
+    let grey = RGBColor(30, 30, 30);
+    chart
+        .draw_series(
+            plot.bins.iter().map(|&(f, v)| {
+                Rectangle::new([(f, floor), (f + plot.bin_hz.max((f1 - f0) / 800.0), v)], grey.filled())
+            }),
+        )
+        .map_err(plot_err)?
+        .label("spectrum (10 Hz bins)")
+        .legend(move |(x, y)| Rectangle::new([(x, y - 4), (x + 16, y + 4)], grey.filled()));
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .label_font(("sans-serif", 14))
+        .position(SeriesLabelPosition::UpperLeft)
+        .draw()
+        .map_err(plot_err)?;
+    root.present().map_err(plot_err)?;
+    Ok(())
+}

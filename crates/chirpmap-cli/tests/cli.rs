@@ -173,3 +173,119 @@ fn explicit_bounds_and_params_are_honoured() {
     assert_eq!(s["grid"]["nx"], 40);
     assert_eq!(s["mapping"]["cell"], 0.5);
 }
+
+fn summary_without_timings(dir: &Path) -> serde_json::Value {
+    let mut v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    let obj = v.as_object_mut().unwrap();
+    assert!(obj.remove("elapsed_s").unwrap().as_f64().unwrap() > 0.0);
+    assert!(obj.remove("simulate_elapsed_s").unwrap().as_f64().unwrap() > 0.0);
+    v
+}
+
+#[test]
+fn simulate_default_scene_is_reproducible_and_replayable() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (a, b, c) = (tmp.path().join("a"), tmp.path().join("b"), tmp.path().join("c"));
+    for dir in [&a, &b] {
+        let o = run(&["simulate", "--out", dir.to_str().unwrap()]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        assert!(String::from_utf8_lossy(&o.stdout).contains("score_obstacle = "));
+    }
+    let mut names: Vec<String> =
+        std::fs::read_dir(&a).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    names.sort();
+    assert_eq!(names, ["echoes.csv", "highlights.csv", "map.png", "scene.toml", "summary.json"]);
+    // Same seed: the same summary, bit for bit (timings aside), and the same files.
+    let sa = summary_without_timings(&a);
+    assert_eq!(sa, summary_without_timings(&b));
+    for f in ["echoes.csv", "highlights.csv", "scene.toml"] {
+        assert_eq!(std::fs::read(a.join(f)).unwrap(), std::fs::read(b.join(f)).unwrap(), "{f}");
+    }
+    assert_eq!(sa["seed"], 1);
+    assert_eq!(sa["n_obstacles"], 3);
+    assert!(sa["n_echoes"].as_u64().unwrap() > 50, "{sa}");
+    assert!(sa["n_highlights"].as_u64().unwrap() > 0);
+    assert!(sa["score_obstacle"].as_f64().unwrap() > 0.0);
+    // The resolved scene (random obstacles listed) replays the run exactly.
+    let scene = a.join("scene.toml");
+    let o = run(&["simulate", scene.to_str().unwrap(), "--out", c.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(sa, summary_without_timings(&c));
+    assert_eq!(std::fs::read(a.join("echoes.csv")).unwrap(), std::fs::read(c.join("echoes.csv")).unwrap());
+    // `chirpmap map` replays the echoes on the same grid to the same highlights.
+    let m = tmp.path().join("m");
+    let echoes = a.join("echoes.csv");
+    let o = run(&[
+        "map",
+        "--echoes",
+        echoes.to_str().unwrap(),
+        "--scene",
+        scene.to_str().unwrap(),
+        "--bounds",
+        "-50,-50,50,50",
+        "--out",
+        m.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(read_highlights(&m), read_highlights(&a));
+}
+
+#[test]
+fn simulate_seed_flag_and_spectra() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("s");
+    let o = run(&["simulate", "--out", out.to_str().unwrap(), "--seed", "7", "--spectra"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let s = summary_without_timings(&out);
+    assert_eq!(s["seed"], 7);
+    assert!(std::fs::read_to_string(out.join("scene.toml")).unwrap().contains("seed = 7"));
+    let spectra = std::fs::read_to_string(out.join("spectra.csv")).unwrap();
+    assert!(spectra.starts_with("listener,t,listener_x,listener_y,f_lo_hz,f_hi_hz,loudness\n"));
+    assert!(spectra.lines().count() > 100);
+    let peaks = std::fs::read_to_string(out.join("peaks.csv")).unwrap();
+    let direct = peaks.lines().filter(|l| l.contains(",direct,")).count();
+    let reflected = peaks.lines().filter(|l| l.contains(",reflected,")).count();
+    assert!(direct > 30, "{direct}");
+    assert_eq!(reflected as u64, s["n_echoes"].as_u64().unwrap());
+    assert_eq!(&std::fs::read(out.join("spectrum.png")).unwrap()[1..4], b"PNG");
+}
+
+#[test]
+fn simulate_bad_scenes_fail_cleanly_without_output() {
+    let tmp = tempfile::tempdir().unwrap();
+    let cases: Vec<(&str, &str, &str)> = vec![
+        ("toml", "[world]\nspeed_of_sound = = 3\n", "line 2"),
+        ("unknown key", "[particles]\nper_tik = 5\n", "per_tik"),
+        ("zero speed of sound", "[world]\nspeed_of_sound = 0.0\n", "world.speed_of_sound must be finite and > 0"),
+        ("negative listener speed", "[[listeners]]\nspeed = -10.0\n", "listeners[0].speed"),
+        ("zero radius", "[[listeners]]\nradius = 0.0\n", "listeners[0].radius"),
+        ("zero tick", "[particles]\ntick_ms = 0.0\n", "particles.tick_ms"),
+        ("zero particles", "[particles]\nper_tick = 0\n", "particles.per_tick"),
+        ("negative particles", "[particles]\nper_tick = -5\n", "per_tick"),
+        ("flat chirp", "[chirp]\nf_start = 300.0\nf_end = 300.0\n", "f_start and f_end"),
+        ("source inside", "[[obstacles]]\ncenter = [1.0, 1.0]\nradius = 3.0\n", "contains the source"),
+        (
+            "overlap",
+            "[[obstacles]]\ncenter = [0.0, -20.0]\nradius = 4.0\n[[obstacles]]\nvertices = [[2.0, -22.0], [9.0, -22.0], [9.0, -18.0]]\n",
+            "overlaps",
+        ),
+        ("listener outside", "[[listeners]]\nstart = [0.0, 60.0]\n", "outside world"),
+    ];
+    for (name, toml, want) in cases {
+        let f = tmp.path().join(format!("{name}.toml"));
+        std::fs::write(&f, toml).unwrap();
+        let out = tmp.path().join(format!("out-{name}"));
+        let o = run(&["simulate", f.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{name}: {err}");
+        assert!(err.contains(want), "{name}: {err}");
+        assert!(!err.contains("panicked"), "{name}: {err}");
+        assert!(!out.exists(), "{name}: partial output left");
+    }
+    let out = tmp.path().join("out-missing");
+    let o = run(&["simulate", "no/such/scene.toml", "--out", out.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("cannot read scene"));
+    assert!(!out.exists());
+}

@@ -10,8 +10,15 @@ use serde::{Deserialize, Serialize};
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct Scene {
-    /// Master seed of the run's random stream.
+    /// Master seed of the run's random stream (DESIGN.md: `ChaCha8Rng::seed_from_u64(seed)`).
     pub seed: u64,
+    /// Run index: the stream of the master generator (`set_stream(run_index)`), so run i of a
+    /// sweep draws the same obstacles in every configuration (paper §III).
+    pub run_index: u64,
+    /// Simulated time (s) from the start of the chirp. Default (absent): the chirp duration plus
+    /// the time sound needs to cross the world from the source to its farthest corner.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub duration_s: Option<f64>,
     pub world: World,
     pub chirp: ChirpSpec,
     pub source: SourceSpec,
@@ -27,6 +34,8 @@ impl Default for Scene {
     fn default() -> Self {
         Self {
             seed: 1,
+            run_index: 0,
+            duration_s: None,
             world: World::default(),
             chirp: ChirpSpec::default(),
             source: SourceSpec::default(),

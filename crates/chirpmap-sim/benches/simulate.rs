@@ -1,0 +1,51 @@
+//! The particle simulator on the paper's heaviest single-listener case
+//! (issue: simulator, "Speed and memory"): default scene, 3 random obstacles,
+//! 1 ms sampling, one thread.
+//!
+//! `cargo bench -p chirpmap-sim --bench simulate`
+//!
+//! - `fast`: the path tracer + spectra, peaks and echoes (`chirpmap_sim::simulate`).
+//! - `fast_and_map`: the same plus Algorithm 1 on the default 0.1 m grid,
+//!   highlights and both scores: everything `chirpmap simulate` computes.
+//! - `stepper`: the brute-force time-stepped oracle on the same scene.
+
+use chirpmap_core::scene::Sampling;
+use chirpmap_core::{AccumulationMapper, GridSpec, Mapper, Point, Scene, score_highlight, score_obstacle};
+use chirpmap_sim::{Resolved, resolve, simulate};
+
+fn main() {
+    divan::main();
+}
+
+fn scene() -> Resolved {
+    let mut s = Scene::default();
+    s.listeners[0].sampling = Sampling { period_ms: Some(1.0), random_ms: None };
+    resolve(&s).expect("default scene resolves")
+}
+
+#[divan::bench(sample_count = 20, sample_size = 1)]
+fn fast(bencher: divan::Bencher) {
+    let r = scene();
+    bencher.bench_local(|| simulate(&r).echoes.len());
+}
+
+#[divan::bench(sample_count = 10, sample_size = 1)]
+fn fast_and_map(bencher: divan::Bencher) {
+    let r = scene();
+    bencher.bench_local(|| {
+        let out = simulate(&r);
+        let spec = GridSpec::from_bounds(r.world, r.scene.mapping.cell, u128::MAX).expect("grid");
+        let mut m = AccumulationMapper::new(spec, r.scene.mapping).expect("mapper");
+        for e in &out.echoes {
+            m.add_echo(e).expect("echo");
+        }
+        let h: Vec<Point> = m.highlights().iter().map(|h| h.pos).collect();
+        (score_obstacle(&r.obstacles, &h), score_highlight(&r.obstacles, &h))
+    });
+}
+
+#[divan::bench(sample_count = 2, sample_size = 1)]
+fn stepper(bencher: divan::Bencher) {
+    let r = scene();
+    bencher.bench_local(|| chirpmap_sim::oracle::simulate_stepped(&r).echoes.len());
+}

@@ -1,0 +1,15 @@
+use chirpmap_core::CoreError;
+use thiserror::Error;
+
+/// Errors of the simulator: all come from the scene, so each names the field at fault.
+#[derive(Debug, Error, Clone, PartialEq)]
+pub enum SimError {
+    #[error("invalid scene: {0}")]
+    Scene(String),
+    #[error(transparent)]
+    Core(#[from] CoreError),
+}
+
+pub(crate) fn scene_err(msg: impl Into<String>) -> SimError {
+    SimError::Scene(msg.into())
+}

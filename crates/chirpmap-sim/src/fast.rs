@@ -1,0 +1,314 @@
+//! The fast simulator: each particle's path is traced once, at emission, and
+//! each straight segment is tested only at the few measurement ticks at which
+//! it can be inside a listener's disc.
+//!
+//! Exactness argument: a particle is sensed at tick m iff its position (path
+//! length `σ = a·dt·(m − k)` along its path) is within the radius of the
+//! listener's position at m. The listener's disc over the whole run lies in
+//! the listener's capsules, so a segment can only be sensed while it is inside
+//! them; [`capsule_interval`] gives that part of the segment exactly, and every
+//! measurement tick in it is tested with the same distance test the stepper
+//! uses. Particles whose first segment points away from every obstacle and
+//! every capsule (an angular window seen from the source) fly straight out of
+//! the world unsensed and are skipped without tracing.
+
+use crate::Sensed;
+use crate::analysis::{SimOutput, analyse};
+use crate::physics::{
+    T_MIN_M, apply_bounce, capsule_interval, disc_window, emission_dir, nearest_hit, points_window, world_exit_m,
+};
+use crate::resolve::Resolved;
+use crate::trajectory::Capsule;
+use chirpmap_core::{Point, Shape};
+use std::f64::consts::TAU;
+
+/// Runs the fast simulator and extracts spectra, peaks and echoes.
+pub fn simulate(r: &Resolved) -> SimOutput {
+    analyse(r, sense_fast(r))
+}
+
+/// Angular windows (centre, half-width) that contain every first segment that
+/// can hit an obstacle; `None` = all directions.
+fn windows(r: &Resolved) -> Option<Vec<(f64, f64)>> {
+    let mut w = Vec::new();
+    for o in &r.obstacles {
+        w.push(match &o.shape {
+            Shape::Circle(c) => disc_window(r.source, c.center, c.radius_m * (1.0 + 1e-9) + 1e-9)?,
+            Shape::Polygon(p) => points_window(r.source, p.vertices())?,
+        });
+    }
+    Some(w)
+}
+
+/// Merged, sorted index ranges `[lo, hi]` of one tick's particles inside the windows.
+fn tick_ranges(windows: &[(f64, f64)], offset_rad: f64, per_tick: u32, out: &mut Vec<(u32, u32)>) {
+    out.clear();
+    let n = i64::from(per_tick);
+    let slice = TAU / f64::from(per_tick);
+    const MARGIN_RAD: f64 = 1e-6;
+    for &(c, h) in windows {
+        let lo_rad = (c - h - MARGIN_RAD - offset_rad).rem_euclid(TAU);
+        let j_lo = (lo_rad / slice).floor() as i64 - 1;
+        let j_hi = ((lo_rad + 2.0 * (h + MARGIN_RAD)) / slice).ceil() as i64 + 1;
+        if j_hi - j_lo + 1 >= n {
+            out.clear();
+            out.push((0, per_tick - 1));
+            return;
+        }
+        // j_lo ∈ [−1, n), j_hi < j_lo + n: at most one wrap either way.
+        let (a, b) = (j_lo.rem_euclid(n), j_hi.rem_euclid(n));
+        if a <= b && j_hi - j_lo < n {
+            out.push((a as u32, b as u32));
+        } else {
+            out.push((a as u32, (n - 1) as u32));
+            out.push((0, b as u32));
+        }
+    }
+    out.sort_unstable();
+    let mut merged: Vec<(u32, u32)> = Vec::with_capacity(out.len());
+    for &(a, b) in out.iter() {
+        match merged.last_mut() {
+            Some(last) if a <= last.1.saturating_add(1) => last.1 = last.1.max(b),
+            _ => merged.push((a, b)),
+        }
+    }
+    *out = merged;
+}
+
+/// A capsule with its bounding circle, for a one-multiply early rejection.
+#[derive(Debug, Clone, Copy)]
+struct Cull {
+    capsule: Capsule,
+    center: Point,
+    radius_m: f64,
+}
+
+fn culls(r: &Resolved) -> Vec<Vec<Cull>> {
+    r.listeners
+        .iter()
+        .map(|l| {
+            l.capsules
+                .iter()
+                .map(|c| Cull {
+                    capsule: *c,
+                    center: (c.a + c.b) * 0.5,
+                    radius_m: 0.5 * c.a.dist(c.b) + c.radius_m + 1e-9,
+                })
+                .collect()
+        })
+        .collect()
+}
+
+/// Every particle sensed by every listener at every measurement, from traced paths.
+pub fn sense_fast(r: &Resolved) -> Vec<Sensed> {
+    let mut out = Vec::new();
+    let windows = windows(r);
+    let culls = culls(r);
+    let mut ranges = Vec::new();
+    sense_direct(r, &mut ranges, &mut out);
+    for k in 0..r.n_emit_ticks {
+        let offset = r.emit_offset_rad[k as usize];
+        match &windows {
+            Some(w) => tick_ranges(w, offset, r.per_tick, &mut ranges),
+            None => {
+                ranges.clear();
+                ranges.push((0, r.per_tick - 1));
+            }
+        }
+        for &(a, b) in &ranges {
+            for j in a..=b {
+                trace_particle(r, &culls, k, j, &mut out);
+            }
+        }
+    }
+    out
+}
+
+/// Senses first segments (straight from the source, not yet reflected) by
+/// inverting the geometry: at measurement tick m, the particles of emission
+/// tick k are on the circle of radius σ = a·dt·(m − k) around the source, and
+/// those inside the listener's disc lie within the angle δ of the listener's
+/// bearing, cos δ = (σ² + D² − r²)/(2σD). Only those few (plus a margin) are
+/// tested, with the same distance test as everywhere else, and kept if their
+/// first segment has not yet ended (obstacle or world edge) at σ.
+fn sense_direct(r: &Resolved, ranges: &mut Vec<(u32, u32)>, out: &mut Vec<Sensed>) {
+    for l in &r.listeners {
+        let r2 = l.radius_m * l.radius_m;
+        for (idx, &m) in l.ticks.iter().enumerate() {
+            let centre = l.positions[idx];
+            let to_l = centre - r.source;
+            let d_m = to_l.norm();
+            let bearing = to_l.y.atan2(to_l.x);
+            // Emission ticks whose ring can touch the disc, one tick of slack.
+            let lag_lo = (((d_m - l.radius_m) / r.step_m).floor().max(0.0) as u64).saturating_sub(1);
+            let lag_hi = ((d_m + l.radius_m) / r.step_m).ceil() as u64 + 1;
+            let k_hi = m.saturating_sub(lag_lo).min(r.n_emit_ticks.saturating_sub(1));
+            let k_lo = m.saturating_sub(lag_hi);
+            if m < lag_lo || r.n_emit_ticks == 0 {
+                continue;
+            }
+            for k in k_lo..=k_hi {
+                let sigma = r.step_m * (m - k) as f64;
+                let all = sigma < 1e-12 || d_m < 1e-12 || {
+                    let cos_d = (sigma * sigma + d_m * d_m - r2) / (2.0 * sigma * d_m);
+                    if cos_d > 1.0 {
+                        continue;
+                    }
+                    cos_d <= -1.0 || {
+                        tick_ranges(&[(bearing, cos_d.acos())], r.emit_offset_rad[k as usize], r.per_tick, ranges);
+                        false
+                    }
+                };
+                if all {
+                    ranges.clear();
+                    ranges.push((0, r.per_tick - 1));
+                }
+                for &(a, b) in ranges.iter() {
+                    for j in a..=b {
+                        let dir = emission_dir(r.dir_table[j as usize], r.emit_rot[k as usize]);
+                        let w = r.source + dir * sigma - centre;
+                        let d2 = w.dot(w);
+                        if d2 > r2 {
+                            continue;
+                        }
+                        let exit = world_exit_m(r.source, dir, &r.world);
+                        let end =
+                            nearest_hit(&r.obstacles, r.source, dir, T_MIN_M).map_or(exit, |(h, _)| h.t.min(exit));
+                        if sigma < end {
+                            out.push(Sensed {
+                                measurement: (l.first_measurement + idx) as u32,
+                                particle: k * u64::from(r.per_tick) + u64::from(j),
+                                freq_hz: heard_hz(r, r.emit_freq_hz[k as usize], dir, l.velocities[idx]),
+                                loudness: 1.0,
+                                dist_m: d2.sqrt(),
+                            });
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+fn trace_particle(r: &Resolved, culls: &[Vec<Cull>], k: u64, j: u32, out: &mut Vec<Sensed>) {
+    let id = k * u64::from(r.per_tick) + u64::from(j);
+    let freq = r.emit_freq_hz[k as usize];
+    let mut dir = emission_dir(r.dir_table[j as usize], r.emit_rot[k as usize]);
+    let mut pos = r.source;
+    let mut s0 = 0.0f64;
+    let mut loud = 1.0f64;
+    let mut bounces = 0u32;
+    let s_max = r.step_m * (r.last_tick - k) as f64;
+    loop {
+        let exit = world_exit_m(pos, dir, &r.world);
+        let hit = nearest_hit(&r.obstacles, pos, dir, T_MIN_M).filter(|(h, _)| h.t < exit);
+        let len = hit.map_or(exit, |(h, _)| h.t);
+        if bounces > 0 {
+            sense_segment(r, culls, k, id, pos, dir, s0, len, freq, loud, out);
+        }
+        let Some((h, i)) = hit else { break };
+        s0 += h.t;
+        if s0 >= s_max {
+            break;
+        }
+        pos = h.point;
+        (dir, loud) = apply_bounce(&r.obstacles[i], dir, h.normal, loud, r.bounce_key, id, bounces);
+        bounces += 1;
+        if loud < r.min_loudness {
+            break;
+        }
+    }
+}
+
+/// Senses one straight segment: path lengths `[s0, s0 + len)` starting at `p`.
+#[allow(clippy::too_many_arguments)]
+#[inline]
+fn sense_segment(
+    r: &Resolved,
+    culls: &[Vec<Cull>],
+    k: u64,
+    id: u64,
+    p: Point,
+    u: Point,
+    s0: f64,
+    len: f64,
+    freq: f64,
+    loud: f64,
+    out: &mut Vec<Sensed>,
+) {
+    for (l, cull) in r.listeners.iter().zip(culls) {
+        let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+        for c in cull {
+            let w = c.center - p;
+            let along = w.dot(u);
+            if along < -c.radius_m || along > len + c.radius_m || u.cross(w).abs() > c.radius_m {
+                continue;
+            }
+            if let Some((a, b)) = capsule_interval(p, u, &c.capsule) {
+                lo = lo.min(a);
+                hi = hi.max(b);
+            }
+        }
+        let (a, b) = (lo.max(0.0), hi.min(len));
+        if a > b {
+            continue;
+        }
+        // Ticks m with σ = step·(m − k) ∈ [s0 + a, s0 + b], one tick of slack each side.
+        let m_lo = k + (((s0 + a) / r.step_m).floor() as u64).saturating_sub(1);
+        let m_hi = k + ((s0 + b) / r.step_m).ceil() as u64 + 1;
+        let r2 = l.radius_m * l.radius_m;
+        let start = l.ticks.partition_point(|&m| m < m_lo);
+        for (idx, &m) in l.ticks.iter().enumerate().skip(start) {
+            if m > m_hi {
+                break;
+            }
+            if m < k {
+                continue;
+            }
+            let sigma = r.step_m * (m - k) as f64;
+            if sigma < s0 || sigma >= s0 + len {
+                continue;
+            }
+            let w = p + u * (sigma - s0) - l.positions[idx];
+            let d2 = w.dot(w);
+            if d2 <= r2 {
+                out.push(Sensed {
+                    measurement: (l.first_measurement + idx) as u32,
+                    particle: id,
+                    freq_hz: heard_hz(r, freq, u, l.velocities[idx]),
+                    loudness: loud,
+                    dist_m: d2.sqrt(),
+                });
+            }
+        }
+    }
+}
+
+/// Heard frequency: with Doppler on, `f·(1 − v·u/a)` for a listener moving at
+/// `v` and a particle travelling along `u` (moving into the sound raises it).
+#[inline]
+pub(crate) fn heard_hz(r: &Resolved, freq: f64, u: Point, v: Point) -> f64 {
+    if r.doppler { freq * (1.0 - v.dot(u) / r.speed_of_sound_mps) } else { freq }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tick_ranges_wrap_and_merge() {
+        let mut out = Vec::new();
+        // A window straddling angle 0 with 360 particles per tick.
+        tick_ranges(&[(0.0, 0.05)], 0.0, 360, &mut out);
+        assert_eq!(out.len(), 2);
+        assert_eq!(out[0].0, 0);
+        assert_eq!(out[1].1, 359);
+        tick_ranges(&[(1.0, 0.1), (1.05, 0.1)], 0.001, 360, &mut out);
+        assert_eq!(out.len(), 1);
+        let (a, b) = out[0];
+        let slice = TAU / 360.0;
+        assert!(f64::from(a) * slice < 0.9 - 0.001 && f64::from(b) * slice > 1.15 - 0.001);
+        tick_ranges(&[(1.0, 4.0)], 0.0, 360, &mut out);
+        assert_eq!(out, vec![(0, 359)]);
+    }
+}

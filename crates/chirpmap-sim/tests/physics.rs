@@ -1,0 +1,209 @@
+//! Physics sanity checks of the particle model (issue: "Sanity the physics").
+#![allow(clippy::unwrap_used)]
+
+use chirpmap_core::geometry::specular_point_on_circle;
+use chirpmap_core::scene::{ListenerSpec, ObstacleSpec, Sampling};
+use chirpmap_core::{AccumulationMapper, Circle, GridSpec, Mapper, Point, Scene};
+use chirpmap_sim::{SimOutput, resolve, simulate};
+
+fn run(s: &Scene) -> SimOutput {
+    simulate(&resolve(s).unwrap())
+}
+
+/// Default scene without obstacles, measuring every `period_ms`.
+fn empty_scene(period_ms: f64) -> Scene {
+    let mut s = Scene::default();
+    s.random_obstacles.count = 0;
+    s.listeners[0].sampling = Sampling { period_ms: Some(period_ms), random_ms: None };
+    s
+}
+
+fn wall(roughness: f64) -> ObstacleSpec {
+    ObstacleSpec {
+        center: None,
+        radius: None,
+        vertices: Some(vec![[-45.0, -20.0], [45.0, -20.0], [45.0, -21.0], [-45.0, -21.0]]),
+        roughness,
+        absorption: 0.2,
+    }
+}
+
+/// Δd of the mirror path off the line y = −20 (image source at y = −40).
+fn wall_delta_d(listener: Point) -> f64 {
+    listener.dist(Point::new(0.0, -40.0)) - listener.dist(Point::new(0.0, 0.0))
+}
+
+#[test]
+fn no_obstacles_no_echoes() {
+    for doppler in [false, true] {
+        let mut s = empty_scene(1.0);
+        s.particles.doppler = doppler;
+        let out = run(&s);
+        let heard = out.measurements.iter().filter(|m| m.direct.is_some()).count();
+        // The direct sound is heard for the whole chirp (~500 of 706 measurements) ...
+        assert!(heard > 450, "direct heard in {heard} measurements");
+        // ... as exactly one peak: the 10 Hz bins a single arrival fills
+        // alternately are merged, so nothing is left to become an echo.
+        assert!(out.echoes.is_empty(), "doppler {doppler}: {} echoes, first {:?}", out.echoes.len(), out.echoes[0]);
+        assert!(out.measurements.iter().all(|m| m.peaks.len() <= 1));
+    }
+}
+
+#[test]
+fn direct_loudness_falls_as_one_over_distance() {
+    // Listeners (almost) at rest at 5, 10, 20 and 40 m: the sensed loudness of
+    // the direct arrival is the particle density times the disc area, and
+    // per_tick particles spread over a ring of circumference 2πD: ∝ 1/D.
+    let mut s = empty_scene(1.0);
+    // They drift radially by one tick's ring spacing (a·dt = 0.343 m) over the
+    // 0.5 s chirp, so the rings' phase within the disc is averaged over.
+    s.listeners = [5.0, 10.0, 20.0, 40.0]
+        .iter()
+        .map(|&d| ListenerSpec {
+            start: [0.0, d],
+            heading_deg: 90.0,
+            speed: 0.343 / 0.5,
+            sampling: Sampling { period_ms: Some(1.0), random_ms: None },
+            ..ListenerSpec::default()
+        })
+        .collect();
+    let out = run(&s);
+    let mut d_times_i = Vec::new();
+    for (id, d) in [5.0, 10.0, 20.0, 40.0].into_iter().enumerate() {
+        let heard: Vec<f64> = out
+            .measurements
+            .iter()
+            .filter(|m| m.listener_id == id as u32)
+            .filter_map(|m| m.direct.map(|k| m.peaks[k].intensity * m.position.norm()))
+            .collect();
+        assert!(heard.len() > 400, "{d} m: {}", heard.len());
+        d_times_i.push(heard.iter().sum::<f64>() / heard.len() as f64);
+    }
+    let first = d_times_i[0];
+    for v in &d_times_i {
+        assert!((v / first - 1.0).abs() < 0.05, "D·I not constant: {d_times_i:?}");
+    }
+}
+
+#[test]
+fn single_circle_delta_d_matches_the_specular_path() {
+    let mut s = empty_scene(5.0);
+    let circle = Circle::new(Point::new(3.0, -20.0), 4.0).unwrap();
+    s.obstacles = vec![ObstacleSpec { roughness: 0.0, ..ObstacleSpec::circle(circle.center, circle.radius_m) }];
+    let out = run(&s);
+    assert!(out.echoes.len() > 20, "{} echoes", out.echoes.len());
+    let source = Point::new(0.0, 0.0);
+    let mut worst: f64 = 0.0;
+    let mut sum = 0.0;
+    for e in &out.echoes {
+        let p = specular_point_on_circle(source, e.listener, &circle).unwrap();
+        let exact = p.dist(source) + p.dist(e.listener) - e.listener.dist(source);
+        worst = worst.max((e.delta_d_m - exact).abs());
+        sum += (e.delta_d_m - exact).abs();
+    }
+    // Resolution: the sensed particles of one arrival fill the listener's disc,
+    // whose path lengths span ±radius (0.5 m) around the centre's; a sparse
+    // reflected arrival (a convex mirror spreads it) can be any few of them,
+    // plus half a 10 Hz bin (0.09 m). So every Δd is within 0.6 m, and on
+    // average much closer.
+    let mean = sum / out.echoes.len() as f64;
+    assert!(worst < 0.6, "worst |Δd − exact| = {worst} m");
+    assert!(mean < 0.25, "mean |Δd − exact| = {mean} m");
+}
+
+fn wall_highlights(listener_y_m: f64) -> (Vec<chirpmap_core::Highlight>, chirpmap_core::Obstacle) {
+    let mut s = empty_scene(10.0);
+    s.listeners[0].start = [-3.0, listener_y_m];
+    s.obstacles = vec![wall(0.1)];
+    let r = resolve(&s).unwrap();
+    let out = simulate(&r);
+    assert!(out.echoes.len() > 20);
+    let spec = GridSpec::from_bounds(s.world.bounds, s.mapping.cell, u128::MAX).unwrap();
+    let mut mapper = AccumulationMapper::new(spec, s.mapping).unwrap();
+    for e in &out.echoes {
+        mapper.add_echo(e).unwrap();
+    }
+    (mapper.highlights(), r.obstacles[0].clone())
+}
+
+#[test]
+fn wall_gives_highlights_on_the_wall() {
+    // Listener passing parallel to the wall y = −20 along y = 35. Every echo
+    // ellipse (foci S, L; sum |L − S'| with S' the image source) is tangent to
+    // the wall, and also to its mirror line y = y_L + 20, since mirroring S
+    // across y = c gives the same sum when (y_L − 2c)² = (y_L + 40)². At
+    // y_L = 35 that ghost line (y = 55) lies outside the world, so the strong
+    // highlights must all be on the wall; weaker ridges where a subset of
+    // ellipses coincide may remain (the paper's thresholds keep anything above
+    // 1 % of the maximum), so we check every highlight above half the maximum.
+    let (highlights, wall) = wall_highlights(35.0);
+    let max = highlights.iter().map(|h| h.value).fold(0.0, f64::max);
+    assert!(max > 0.0);
+    for h in highlights.iter().filter(|h| h.value >= 0.5 * max) {
+        let d = wall.surface_distance(h.pos);
+        assert!(d <= 1.0, "highlight {h:?} is {d} m from the wall");
+    }
+}
+
+#[test]
+fn parallel_pass_also_lights_the_mirror_line() {
+    // The same at the default y_L = 10: the ghost line y = 30 is inside the
+    // world and lit about as strongly as the wall. A limit of one straight
+    // pass, not of the simulator.
+    let (highlights, wall) = wall_highlights(10.0);
+    let max = highlights.iter().map(|h| h.value).fold(0.0, f64::max);
+    let strong: Vec<_> = highlights.iter().filter(|h| h.value >= 0.5 * max).collect();
+    assert!(strong.iter().any(|h| wall.surface_distance(h.pos) <= 1.0), "{strong:?}");
+    assert!(strong.iter().any(|h| (h.pos.y - 30.0).abs() <= 1.0), "{strong:?}");
+}
+
+/// Echo Δd minus the mirror-path Δd, for a wall of the given roughness.
+fn wall_residuals(roughness: f64) -> Vec<f64> {
+    let mut s = empty_scene(5.0);
+    s.obstacles = vec![wall(roughness)];
+    run(&s).echoes.iter().map(|e| e.delta_d_m - wall_delta_d(e.listener)).collect()
+}
+
+#[test]
+fn roughness_spreads_echoes_beyond_the_mirror_path() {
+    let smooth = wall_residuals(0.0);
+    let rough = wall_residuals(0.5);
+    // Smooth: every echo is the mirror path, within the disc resolution.
+    assert!(smooth.len() > 30);
+    assert!(smooth.iter().all(|r| r.abs() < 0.6), "{smooth:?}");
+    // Rough: a perturbed bounce is never shorter than the mirror path (Fermat),
+    // and many are much longer.
+    assert!(rough.iter().all(|&r| r > -0.6), "{rough:?}");
+    let far = |v: &[f64]| v.iter().filter(|r| r.abs() > 1.0).count();
+    assert_eq!(far(&smooth), 0);
+    assert!(far(&rough) > rough.len() / 4, "{} of {} far", far(&rough), rough.len());
+}
+
+#[test]
+fn absorption_scales_echo_weights_and_nothing_else() {
+    let mut s = empty_scene(5.0);
+    let mut c = ObstacleSpec::circle(Point::new(3.0, -20.0), 4.0);
+    c.absorption = 0.0;
+    s.obstacles = vec![c.clone()];
+    let loud = run(&s).echoes;
+    c.absorption = 0.5;
+    s.obstacles = vec![c];
+    let quiet = run(&s).echoes;
+    // One convex circle: every reflected particle bounced exactly once, so
+    // its loudness is 1 − absorption; paths (and so Δd) are unchanged.
+    assert!(loud.len() > 20);
+    assert_eq!(loud.len(), quiet.len());
+    for (a, b) in loud.iter().zip(&quiet) {
+        assert_eq!(a.delta_d_m, b.delta_d_m);
+        assert_eq!(a.weight * 0.5, b.weight);
+    }
+}
+
+#[test]
+fn same_seed_same_run_different_seed_different_run() {
+    let s = Scene::default();
+    assert_eq!(run(&s), run(&s));
+    let mut t = s.clone();
+    t.seed = 2;
+    assert_ne!(run(&s).echoes, run(&t).echoes);
+}
