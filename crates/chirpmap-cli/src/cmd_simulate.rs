@@ -242,3 +242,36 @@ fn write_spectra(staged: &mut Staged, r: &Resolved, out: &SimOutput) -> Result<(
         ),
     }
 }
+
+/// Scene checks for sweeps: everything `simulate` would refuse.
+pub fn validate_scene(scene: &Scene) -> Result<(), String> {
+    resolve(scene).map(|_| ()).map_err(|e| e.to_string())
+}
+
+/// One sweep run: run `run` (the random stream) of `scene`, mapped and scored.
+pub fn run_metrics(scene: &Scene, run: u64) -> Result<chirpmap_experiments::RunMetrics, String> {
+    let mut scene = scene.clone();
+    scene.run_index = run;
+    let resolved = resolve(&scene).map_err(|e| e.to_string())?;
+    let out = simulate(&resolved);
+    let params = resolved.scene.mapping;
+    let spec =
+        GridSpec::from_bounds(resolved.world, params.cell, DEFAULT_MEMORY_CAP_BYTES).map_err(|e| e.to_string())?;
+    let outcome = map_echoes(&out.echoes, spec, params).map_err(|e| e.to_string())?;
+    let points: Vec<Point> = outcome.highlights.iter().map(|h| h.pos).collect();
+    Ok(chirpmap_experiments::RunMetrics {
+        score_obstacle: score_obstacle(&resolved.obstacles, &points),
+        score_highlight: score_highlight(&resolved.obstacles, &points),
+        n_highlights: points.len(),
+        n_echoes: out.echoes.len(),
+    })
+}
+
+/// Listener 0's start and path length in the default scene (Table II's
+/// patterns are placed relative to it).
+pub fn listener0_path() -> ([f64; 2], f64) {
+    let scene = Scene::default();
+    let l0 = &scene.listeners[0];
+    let duration_s = resolve(&scene).map_or(0.0, |r| r.last_tick as f64 * r.tick_s);
+    (l0.start, l0.speed * duration_s)
+}

@@ -2,9 +2,11 @@
 
 mod cmd_map;
 mod cmd_simulate;
+mod cmd_sweep;
 mod echoes_csv;
 mod output;
 mod plot;
+mod plot_summary;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
@@ -30,6 +32,10 @@ enum Command {
     Simulate(cmd_simulate::SimulateArgs),
     /// Accumulate echo ellipses on a grid (paper Algorithm 1) and extract highlights.
     Map(cmd_map::MapArgs),
+    /// Run a parameter sweep (presets: table1, table2) in parallel; resumable and shardable.
+    Sweep(cmd_sweep::SweepArgs),
+    /// Join the output directories of a sharded sweep.
+    Merge(cmd_sweep::MergeArgs),
 }
 
 fn main() -> ExitCode {
@@ -37,6 +43,8 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Simulate(args) => cmd_simulate::run(&args),
         Command::Map(args) => cmd_map::run(&args),
+        Command::Sweep(args) => cmd_sweep::run_sweep_cmd(&args),
+        Command::Merge(args) => cmd_sweep::run_merge_cmd(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

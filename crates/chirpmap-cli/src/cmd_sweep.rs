@@ -1,0 +1,135 @@
+//! `chirpmap sweep` and `chirpmap merge`: the paper's tables, in parallel,
+//! resumable, shardable.
+
+use crate::plot_summary::plot_summary;
+use anyhow::{Context, Result, anyhow, bail};
+use chirpmap_experiments::driver::{merge, run_sweep};
+use chirpmap_experiments::presets::{PRESETS, preset};
+use chirpmap_experiments::{Plan, Shard, SweepDef};
+use clap::Args;
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+#[derive(Debug, Args)]
+pub struct SweepArgs {
+    /// A preset (`table1`, `table2`) or a sweep TOML file.
+    pub sweep: String,
+    /// Output directory (runs.csv, summary.csv, summary.md, summary.png). Rerunning resumes.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Override the number of runs per configuration.
+    #[arg(long)]
+    pub runs: Option<u64>,
+    /// Worker threads (default: all cores). Results do not depend on it.
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Run only shard I of N (0-based), e.g. `--shard 2/8`; join shards with `chirpmap merge`.
+    #[arg(long, value_parser = parse_shard)]
+    pub shard: Option<Shard>,
+    /// Do not draw a progress bar.
+    #[arg(long)]
+    pub no_progress: bool,
+}
+
+#[derive(Debug, Args)]
+pub struct MergeArgs {
+    /// Shard output directories of one sweep.
+    #[arg(required = true)]
+    pub dirs: Vec<PathBuf>,
+    /// Output directory for the joined runs.csv and summaries.
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+fn parse_shard(s: &str) -> Result<Shard, String> {
+    Shard::parse(s).map_err(|e| e.to_string())
+}
+
+/// Resolves a preset name or a sweep file.
+pub fn load_sweep(arg: &str) -> Result<SweepDef> {
+    let (start, path_len) = crate::cmd_simulate::listener0_path();
+    if let Some(def) = preset(arg, start, path_len) {
+        return Ok(def);
+    }
+    let path = Path::new(arg);
+    if !path.exists() {
+        bail!("unknown preset {arg:?} and no such sweep file (presets: {})", PRESETS.join(", "));
+    }
+    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read sweep {}", path.display()))?;
+    SweepDef::from_toml_str(&text).map_err(|e| anyhow!("{}: {e}", path.display()))
+}
+
+fn plan(def: &SweepDef) -> Result<Plan, chirpmap_experiments::ExperimentError> {
+    def.plan(crate::cmd_simulate::validate_scene)
+}
+
+fn finish(dir: &Path, plan: &Plan, summaries: &[chirpmap_experiments::summary::ConfigSummary]) -> Result<()> {
+    let png = dir.join("summary.png");
+    plot_summary(&png, plan, summaries)?;
+    let md = std::fs::read_to_string(dir.join("summary.md")).unwrap_or_default();
+    println!("{md}");
+    Ok(())
+}
+
+pub fn run_sweep_cmd(args: &SweepArgs) -> Result<()> {
+    let mut def = load_sweep(&args.sweep)?;
+    if let Some(r) = args.runs {
+        def.runs = r;
+    }
+    let plan = plan(&def)?;
+    let shard = args.shard.unwrap_or(Shard::ALL);
+    let threads = args.threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    if threads == 0 {
+        bail!("--threads must be at least 1");
+    }
+    let total = plan.shard_jobs(shard).len();
+    let bar = ProgressBar::new(total as u64);
+    if args.no_progress {
+        bar.set_draw_target(ProgressDrawTarget::hidden());
+    }
+    bar.set_style(
+        ProgressStyle::with_template("{spinner} [{elapsed_precise}] {wide_bar} {pos}/{len} runs  {per_sec}  ETA {eta}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    let started = Instant::now();
+    let outcome = run_sweep(&plan, &args.out, shard, threads, crate::cmd_simulate::run_metrics, |done, _| {
+        bar.set_position(done as u64);
+    })?;
+    bar.finish_and_clear();
+    let secs = started.elapsed().as_secs_f64();
+    eprintln!(
+        "{}: {} runs done ({} resumed, {} run now) in {secs:.1} s on {threads} threads ({:.1} runs/s); wrote {}",
+        plan.def.name,
+        outcome.rows.len(),
+        outcome.resumed,
+        outcome.executed,
+        outcome.executed as f64 / secs.max(1e-9),
+        args.out.display()
+    );
+    finish(&args.out, &plan, &outcome.summaries)
+}
+
+pub fn run_merge_cmd(args: &MergeArgs) -> Result<()> {
+    let inputs: Vec<&Path> = args.dirs.iter().map(PathBuf::as_path).collect();
+    let (outcome, report) = merge(&inputs, &args.out, plan)?;
+    if !report.duplicated.is_empty() {
+        eprintln!(
+            "warning: {} runs appear in more than one input (identical results, kept once), e.g. {:?}",
+            report.duplicated.len(),
+            report.duplicated[0]
+        );
+    }
+    if !report.missing.is_empty() {
+        eprintln!(
+            "warning: {} runs are missing (first: configuration {}, run {}); the summary covers the rest",
+            report.missing.len(),
+            report.missing[0].config,
+            report.missing[0].run
+        );
+    }
+    let (_, def) = chirpmap_experiments::driver::read_sweep_def(inputs[0])?;
+    let plan = plan(&def)?;
+    eprintln!("merged {} runs from {} directories into {}", outcome.rows.len(), inputs.len(), args.out.display());
+    finish(&args.out, &plan, &outcome.summaries)
+}
