@@ -31,7 +31,8 @@ pub fn plot_summary(path: &Path, plan: &Plan, summaries: &[ConfigSummary]) -> Re
             plan.def.params.iter().zip(&s.labels).map(|(p, l)| format!("{}={l}", p.name)).collect::<Vec<_>>().join(", ")
         })
     };
-    let panels: [(&DrawingArea<_, _>, &str, fn(&ConfigSummary) -> MeanCi, bool); 2] = [
+    type Panel<'a, A> = (&'a A, &'static str, fn(&ConfigSummary) -> MeanCi, bool);
+    let panels: [Panel<_>; 2] = [
         (&left, "score_obstacle", |s| s.score_obstacle, true),
         (&right, "score_highlight", |s| s.score_highlight, false),
     ];
