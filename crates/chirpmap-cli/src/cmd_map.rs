@@ -23,22 +23,23 @@ pub struct MapArgs {
     /// Output directory (created; highlights.csv, map.png, summary.json).
     #[arg(long)]
     pub out: PathBuf,
-    /// Grid cell size (m).
-    #[arg(long, default_value_t = MappingParams::default().cell)]
-    pub cell: f64,
-    /// Fraction of non-zero cells kept by the percentile threshold.
-    #[arg(long, default_value_t = MappingParams::default().keep_top)]
-    pub keep_top: f64,
-    /// Cells below this fraction of the maximum are zeroed.
-    #[arg(long, default_value_t = MappingParams::default().min_of_max)]
-    pub min_of_max: f64,
-    /// A highlight is the maximum within this radius (m).
-    #[arg(long, default_value_t = MappingParams::default().peak_radius)]
-    pub peak_radius: f64,
+    /// Grid cell size (m) [default: 0.1, or the scene's [mapping] with --scene].
+    #[arg(long)]
+    pub cell: Option<f64>,
+    /// Fraction of non-zero cells kept by the percentile threshold [default: 0.1, or the scene's [mapping] with --scene].
+    #[arg(long)]
+    pub keep_top: Option<f64>,
+    /// Cells below this fraction of the maximum are zeroed [default: 0.01, or the scene's [mapping] with --scene].
+    #[arg(long)]
+    pub min_of_max: Option<f64>,
+    /// A highlight is the maximum within this radius (m) [default: 5.0, or the scene's [mapping] with --scene].
+    #[arg(long)]
+    pub peak_radius: Option<f64>,
     /// Grid bounds XMIN,YMIN,XMAX,YMAX (m). Default: the region the ellipses cover.
     #[arg(long, value_parser = parse_bounds, allow_hyphen_values = true)]
     pub bounds: Option<[f64; 4]>,
-    /// Scene TOML: its obstacles are drawn and used for score_obstacle / score_highlight.
+    /// Scene TOML: its obstacles (listed or random, resolved exactly as `simulate` does) are drawn and
+    /// scored (score_obstacle / score_highlight); its [mapping] gives the defaults above.
     #[arg(long)]
     pub scene: Option<PathBuf>,
 }
@@ -126,21 +127,24 @@ pub fn foci(echoes: &[Echo]) -> (Vec<Point>, Vec<Point>) {
 
 pub fn run(args: &MapArgs) -> Result<()> {
     let started = Instant::now();
+    let (obstacles, base): (Vec<Obstacle>, MappingParams) = match &args.scene {
+        Some(p) => {
+            let resolved = chirpmap_sim::resolve(&load_scene(p)?).map_err(|e| anyhow!("{}: {e}", p.display()))?;
+            (resolved.obstacles, resolved.scene.mapping)
+        }
+        None => (Vec::new(), MappingParams::default()),
+    };
     let params = MappingParams {
-        cell: args.cell,
-        keep_top: args.keep_top,
-        min_of_max: args.min_of_max,
-        peak_radius: args.peak_radius,
+        cell: args.cell.unwrap_or(base.cell),
+        keep_top: args.keep_top.unwrap_or(base.keep_top),
+        min_of_max: args.min_of_max.unwrap_or(base.min_of_max),
+        peak_radius: args.peak_radius.unwrap_or(base.peak_radius),
     };
     params.validate()?;
     let echoes = read_echoes(&args.echoes)?;
     if echoes.is_empty() {
         bail!("{}: no echoes (the file has a header but no rows)", args.echoes.display());
     }
-    let obstacles: Vec<Obstacle> = match &args.scene {
-        Some(p) => load_scene(p)?.explicit_obstacles().map_err(|e| anyhow!("{}: {e}", p.display()))?,
-        None => Vec::new(),
-    };
     let bounds = match args.bounds {
         Some(b) => b,
         None => {

@@ -11,14 +11,17 @@ pub struct Staged {
     staging: PathBuf,
     files: Vec<String>,
     committed: bool,
+    /// Whether `dir` did not exist before, so a failure may remove it.
+    created_dir: bool,
 }
 
 impl Staged {
     pub fn new(dir: &Path) -> Result<Self> {
+        let created_dir = !dir.exists();
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create output directory {}", dir.display()))?;
         let staging = dir.join(format!(".chirpmap-partial-{}", std::process::id()));
         std::fs::create_dir_all(&staging).with_context(|| format!("cannot create {}", staging.display()))?;
-        Ok(Self { dir: dir.to_path_buf(), staging, files: Vec::new(), committed: false })
+        Ok(Self { dir: dir.to_path_buf(), staging, files: Vec::new(), committed: false, created_dir })
     }
 
     /// Path at which to write `name`; it lands in the output on [`Staged::commit`].
@@ -52,7 +55,9 @@ impl Drop for Staged {
         if !self.committed {
             std::fs::remove_dir_all(&self.staging).ok();
             // Leave no empty directory behind that we created.
-            std::fs::remove_dir(&self.dir).ok();
+            if self.created_dir {
+                std::fs::remove_dir(&self.dir).ok();
+            }
         }
     }
 }

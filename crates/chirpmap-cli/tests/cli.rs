@@ -130,6 +130,7 @@ fn bad_input_fails_cleanly_without_output() {
         ("empty", head.as_bytes().to_vec(), "no echoes"),
         ("garbage", (0u8..=255).cycle().take(3000).collect(), ""),
         ("huge", format!("{head}0,0,1,1,1e9\n").into_bytes(), "more than the cap"),
+        ("absurd", format!("{head}0,0,1,1,2\n0,0,1,1,1e12\n").into_bytes(), ":3: invalid geometry"),
     ];
     for (name, bytes, want) in cases {
         let f = tmp.path().join(format!("{name}.csv"));
@@ -288,4 +289,33 @@ fn simulate_bad_scenes_fail_cleanly_without_output() {
     assert_eq!(o.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&o.stderr).contains("cannot read scene"));
     assert!(!out.exists());
+}
+
+#[test]
+fn map_scene_with_random_obstacles_is_scored_like_simulate() {
+    let tmp = tempfile::tempdir().unwrap();
+    let sim = tmp.path().join("sim");
+    let o = run(&["simulate", "--out", sim.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let empty = tmp.path().join("empty.toml");
+    std::fs::write(&empty, "").unwrap();
+    let out = tmp.path().join("map");
+    let echoes = sim.join("echoes.csv");
+    let o = run(&[
+        "map",
+        "--echoes",
+        echoes.to_str().unwrap(),
+        "--scene",
+        empty.to_str().unwrap(),
+        "--bounds",
+        "-50,-50,50,50",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let read = |p: &Path| -> serde_json::Value { serde_json::from_str(&std::fs::read_to_string(p).unwrap()).unwrap() };
+    let (m, s) = (read(&out.join("summary.json")), read(&sim.join("summary.json")));
+    assert_eq!(m["score_obstacle"], s["score_obstacle"], "{m} vs {s}");
+    assert_eq!(m["score_highlight"], s["score_highlight"]);
+    assert_eq!(m["n_highlights"], s["n_highlights"]);
 }

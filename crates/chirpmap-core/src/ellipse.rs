@@ -4,6 +4,10 @@
 use crate::error::{CoreError, finite};
 use crate::geometry::Point;
 
+/// Largest coordinate or path difference accepted (m): far beyond any
+/// acoustic scene, and small enough that cell indices never overflow.
+pub const MAX_EXTENT_M: f64 = 1e9;
+
 /// An ellipse given by its foci and path-length difference, with the derived
 /// quantities the rasteriser needs precomputed.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -34,6 +38,12 @@ impl Ellipse {
         finite("delta_d", delta_d_m)?;
         if delta_d_m < 0.0 {
             return Err(CoreError::NegativeDeltaD(delta_d_m));
+        }
+        if [source.x, source.y, listener.x, listener.y, delta_d_m].iter().any(|v| v.abs() > MAX_EXTENT_M) {
+            return Err(CoreError::InvalidGeometry(format!(
+                "coordinates and delta_d must be within ±{MAX_EXTENT_M:e} m (source ({}, {}), listener ({}, {}), delta_d {delta_d_m})",
+                source.x, source.y, listener.x, listener.y
+            )));
         }
         let d = listener - source;
         let dist_m = d.norm();
@@ -100,6 +110,8 @@ mod tests {
         assert!(Ellipse::new(s, s, 1.0).is_err());
         assert!(Ellipse::new(s, Point::new(1.0, f64::NAN), 1.0).is_err());
         assert!(Ellipse::new(s, Point::new(1.0, 0.0), f64::INFINITY).is_err());
+        assert!(Ellipse::new(s, Point::new(1.0, 0.0), 1e155).is_err());
+        assert!(Ellipse::new(s, Point::new(2e17, 0.0), 1.0).is_err());
     }
 
     #[test]

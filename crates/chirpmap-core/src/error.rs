@@ -17,7 +17,7 @@ pub enum CoreError {
     #[error("invalid grid: {0}")]
     InvalidGrid(String),
     #[error(
-        "grid of {nx} x {ny} cells needs {bytes} bytes, more than the cap of {cap} bytes; \
+        "grid of {nx} x {ny} cells needs {bytes} bytes to map, more than the cap of {cap} bytes; \
          pass smaller --bounds or a larger --cell"
     )]
     GridTooLarge { nx: usize, ny: usize, bytes: u128, cap: u128 },

@@ -3,9 +3,14 @@
 use crate::error::CoreError;
 use crate::geometry::Point;
 
-/// Largest grid allowed by default (2 GiB of f64 cells); beyond this the
+/// Default cap on the mapper's peak working memory (2 GiB); beyond this the
 /// user gets an error instead of an out-of-memory crash.
 pub const DEFAULT_MEMORY_CAP_BYTES: u128 = 2 << 30;
+
+/// Grid-sized f64 buffers alive at the peak of mapping: the tiled
+/// accumulator, its row-major view, the thresholded copy, and the row-max,
+/// two van Herk and window-max buffers of highlight extraction.
+pub const WORKING_COPIES: u128 = 7;
 
 /// Placement of a grid in the world frame. Cell `(i, j)` covers
 /// `[x_min + i·cell, x_min + (i+1)·cell) × [y_min + j·cell, y_min + (j+1)·cell)`.
@@ -20,7 +25,8 @@ pub struct GridSpec {
 
 impl GridSpec {
     /// Grid covering `[x_min, x_max] × [y_min, y_max]` with square cells of
-    /// `cell_m`, refusing grids above `cap_bytes` of f64 cells.
+    /// `cell_m`, refusing grids whose mapping would need more than `cap_bytes`
+    /// ([`WORKING_COPIES`] f64 buffers of the grid's size).
     pub fn from_bounds(bounds: [f64; 4], cell_m: f64, cap_bytes: u128) -> Result<Self, CoreError> {
         let [x_min, y_min, x_max, y_max] = bounds;
         if !cell_m.is_finite() || cell_m <= 0.0 {
@@ -33,8 +39,8 @@ impl GridSpec {
         }
         let nx_f = ((x_max - x_min) / cell_m).ceil().max(1.0);
         let ny_f = ((y_max - y_min) / cell_m).ceil().max(1.0);
-        let bytes = (nx_f * ny_f * 8.0) as u128;
-        if nx_f * ny_f * 8.0 > cap_bytes as f64 {
+        let bytes = (nx_f * ny_f * 8.0 * WORKING_COPIES as f64) as u128;
+        if nx_f * ny_f * 8.0 * WORKING_COPIES as f64 > cap_bytes as f64 {
             return Err(CoreError::GridTooLarge { nx: nx_f as usize, ny: ny_f as usize, bytes, cap: cap_bytes });
         }
         Ok(Self { x_min_m: x_min, y_min_m: y_min, cell_m, nx: nx_f as usize, ny: ny_f as usize })

@@ -7,7 +7,6 @@ use crate::geometry::Point;
 use crate::grid::{Grid, GridSpec};
 use crate::raster::for_each_entered_span;
 use serde::{Deserialize, Serialize};
-use std::collections::VecDeque;
 
 /// The four numbers of Algorithm 1's post-processing, paper values by default.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -50,6 +49,7 @@ impl MappingParams {
 
     /// Window radius in cells, ⌊peak_radius / w⌋ as in Algorithm 1.
     pub fn peak_radius_cells(&self) -> usize {
+        // `as` saturates, and local_maxima clamps to the grid size.
         (self.peak_radius / self.cell + 1e-9).floor() as usize
     }
 }
@@ -183,48 +183,112 @@ pub fn threshold(data: &mut [f64], keep_top: f64, min_of_max: f64) {
     }
 }
 
-/// Sliding-window maximum of `src` with half-width `r` (window 2r+1, clipped at
-/// the ends), written to `dst`. Monotonic deque: O(n) for any r.
-fn sliding_max(src: impl Iterator<Item = f64> + Clone, n: usize, r: usize, mut dst: impl FnMut(usize, f64)) {
-    let vals: Vec<f64> = src.collect();
-    let mut dq: VecDeque<usize> = VecDeque::new();
-    let mut next = 0;
-    for i in 0..n {
-        let hi = (i + r).min(n - 1);
-        while next <= hi {
-            while dq.back().is_some_and(|&b| vals[b] <= vals[next]) {
-                dq.pop_back();
-            }
-            dq.push_back(next);
-            next += 1;
-        }
-        while dq.front().is_some_and(|&f| f + r < i) {
-            dq.pop_front();
-        }
-        if let Some(&f) = dq.front() {
-            dst(i, vals[f]);
-        }
+/// Running maximum over windows of `2r+1` elements (van Herk / Gil–Werman):
+/// three max operations per element whatever `r` is. `src` is padded with `r`
+/// zeros on both sides (values are non-negative), `out[i]` is the maximum of
+/// `src[i-r ..= i+r]` clipped to the slice.
+fn window_max_1d(src: &[f64], r: usize, out: &mut [f64], g: &mut Vec<f64>, h: &mut Vec<f64>) {
+    let n = src.len();
+    let k = 2 * r + 1;
+    let m = n + 2 * r;
+    let at = |p: usize| if p >= r && p < r + n { src[p - r] } else { 0.0 };
+    g.clear();
+    g.resize(m, 0.0);
+    h.clear();
+    h.resize(m, 0.0);
+    for p in 0..m {
+        g[p] = if p % k == 0 { at(p) } else { g[p - 1].max(at(p)) };
+    }
+    for p in (0..m).rev() {
+        h[p] = if p % k == k - 1 || p == m - 1 { at(p) } else { h[p + 1].max(at(p)) };
+    }
+    for (i, o) in out.iter_mut().enumerate() {
+        // Padded window [i, i + 2r] spans at most two blocks.
+        *o = h[i].max(g[i + 2 * r]);
     }
 }
 
-/// Cells with a non-zero value equal to the maximum of the (2r+1)² square
-/// window around them, in raster order.
+/// Window maximum over whole rows at once (the vertical pass), so every
+/// operation runs along contiguous memory.
+fn window_max_rows(src: &[f64], nx: usize, ny: usize, r: usize) -> Vec<f64> {
+    let k = 2 * r + 1;
+    let m = ny + 2 * r;
+    let zero = vec![0.0; nx];
+    let row = |p: usize| if p >= r && p < r + ny { &src[(p - r) * nx..(p - r + 1) * nx] } else { &zero[..] };
+    let mut g = vec![0.0; m * nx];
+    let mut h = vec![0.0; m * nx];
+    for p in 0..m {
+        let (prev, cur) = g.split_at_mut(p * nx);
+        let cur = &mut cur[..nx];
+        if p % k == 0 {
+            cur.copy_from_slice(row(p));
+        } else {
+            let prev = &prev[(p - 1) * nx..];
+            for ((c, a), b) in cur.iter_mut().zip(prev).zip(row(p)) {
+                *c = a.max(*b);
+            }
+        }
+    }
+    for p in (0..m).rev() {
+        let (cur, next) = h.split_at_mut((p + 1) * nx);
+        let cur = &mut cur[p * nx..];
+        if p % k == k - 1 || p == m - 1 {
+            cur.copy_from_slice(row(p));
+        } else {
+            for ((c, a), b) in cur.iter_mut().zip(&next[..nx]).zip(row(p)) {
+                *c = a.max(*b);
+            }
+        }
+    }
+    let mut out = vec![0.0; nx * ny];
+    for j in 0..ny {
+        let (hr, gr) = (&h[j * nx..(j + 1) * nx], &g[(j + 2 * r) * nx..(j + 2 * r + 1) * nx]);
+        for ((o, a), b) in out[j * nx..(j + 1) * nx].iter_mut().zip(hr).zip(gr) {
+            *o = a.max(*b);
+        }
+    }
+    out
+}
+
+/// Highlights: non-zero cells equal to the maximum of the (2r+1)² square
+/// window around them (Algorithm 1's "local maxima within ⌊5/w⌋ bins"), in
+/// raster order. A plateau of equal maxima yields one highlight per window:
+/// a tied cell is dropped when an earlier (raster order) highlight of the
+/// same value lies within its window.
 pub fn local_maxima(g: &Grid, r: usize) -> Vec<Highlight> {
     let GridSpec { nx, ny, .. } = g.spec;
+    if nx == 0 || ny == 0 {
+        return Vec::new();
+    }
+    let r = r.min(nx.max(ny));
     let mut row_max = vec![0.0; nx * ny];
+    let (mut gbuf, mut hbuf) = (Vec::new(), Vec::new());
     for j in 0..ny {
-        let row = &g.data[j * nx..(j + 1) * nx];
-        sliding_max(row.iter().copied(), nx, r, |i, v| row_max[j * nx + i] = v);
+        window_max_1d(&g.data[j * nx..(j + 1) * nx], r, &mut row_max[j * nx..(j + 1) * nx], &mut gbuf, &mut hbuf);
     }
-    let mut win_max = vec![0.0; nx * ny];
-    for i in 0..nx {
-        sliding_max((0..ny).map(|j| row_max[j * nx + i]), ny, r, |j, v| win_max[j * nx + i] = v);
-    }
+    let win_max = window_max_rows(&row_max, nx, ny, r);
+    drop(row_max);
+    let bucket = r + 1;
+    // Kept highlights `(i, j, value)`, bucketed by (i, j) / (r + 1).
+    type Buckets = std::collections::HashMap<(usize, usize), Vec<(usize, usize, f64)>>;
+    let mut kept = Buckets::default();
     let mut out = Vec::new();
     for j in 0..ny {
         for i in 0..nx {
             let v = g.data[j * nx + i];
-            if v > 0.0 && v == win_max[j * nx + i] {
+            if !(v > 0.0 && v == win_max[j * nx + i]) {
+                continue;
+            }
+            let (bi, bj) = (i / bucket, j / bucket);
+            let tied = (bj.saturating_sub(1)..=bj + 1).any(|qj| {
+                (bi.saturating_sub(1)..=bi + 1).any(|qi| {
+                    kept.get(&(qi, qj)).is_some_and(|cells| {
+                        cells.iter().any(|&(ci, cj, cv)| cv == v && ci.abs_diff(i) <= r && cj.abs_diff(j) <= r)
+                    })
+                })
+            });
+            if !tied {
+                kept.entry((bi, bj)).or_default().push((i, j, v));
                 out.push(Highlight { pos: g.spec.cell_center(i, j), value: v });
             }
         }
@@ -266,19 +330,58 @@ mod tests {
         assert_eq!(h.len(), 3);
     }
 
-    #[test]
-    fn sliding_max_matches_naive() {
-        let vals: Vec<f64> = (0..97).map(|i| ((i * 37) % 23) as f64).collect();
-        for r in [0, 1, 5, 50, 200] {
-            let mut got = vec![0.0; vals.len()];
-            sliding_max(vals.iter().copied(), vals.len(), r, |i, v| got[i] = v);
-            for (i, g) in got.iter().enumerate() {
-                let lo = i.saturating_sub(r);
-                let hi = (i + r).min(vals.len() - 1);
-                let want = vals[lo..=hi].iter().copied().fold(f64::MIN, f64::max);
-                assert_eq!(*g, want, "r={r} i={i}");
+    /// Reference: a cell is a maximum iff no cell in its window is larger,
+    /// and plateau ties go to the earliest kept cell in raster order.
+    fn naive_maxima(g: &Grid, r: usize) -> Vec<(usize, usize)> {
+        let GridSpec { nx, ny, .. } = g.spec;
+        let mut kept: Vec<(usize, usize, f64)> = Vec::new();
+        for j in 0..ny {
+            for i in 0..nx {
+                let v = g.get(i, j);
+                let mut is_max = v > 0.0;
+                for jj in j.saturating_sub(r)..=(j + r).min(ny - 1) {
+                    for ii in i.saturating_sub(r)..=(i + r).min(nx - 1) {
+                        is_max &= g.get(ii, jj) <= v;
+                    }
+                }
+                let tied = kept.iter().any(|&(ki, kj, kv)| kv == v && ki.abs_diff(i) <= r && kj.abs_diff(j) <= r);
+                if is_max && !tied {
+                    kept.push((i, j, v));
+                }
             }
         }
+        kept.into_iter().map(|(i, j, _)| (i, j)).collect()
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn local_maxima_match_naive(
+            nx in 1usize..40, ny in 1usize..40, r in 0usize..12, seed in 0u64..1000, levels in 1u64..6,
+        ) {
+            let mut g = Grid::zeros(GridSpec { x_min_m: 0.0, y_min_m: 0.0, cell_m: 0.1, nx, ny });
+            let mut x = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            for v in &mut g.data {
+                x = x.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+                *v = ((x >> 33) % (levels + 1)) as f64; // few levels: many ties and zeros
+            }
+            let got: Vec<_> = local_maxima(&g, r).iter().map(|h| g.spec.cell_of(h.pos).unwrap()).collect();
+            proptest::prop_assert_eq!(got, naive_maxima(&g, r));
+        }
+    }
+
+    #[test]
+    fn plateau_gives_one_highlight_per_window() {
+        let mut g = Grid::zeros(spec(100));
+        for j in 40..43 {
+            for i in 10..14 {
+                g.data[j * 100 + i] = 3.0;
+            }
+        }
+        let h = local_maxima(&g, 50);
+        assert_eq!(h.len(), 1);
+        assert_eq!(g.spec.cell_of(h[0].pos), Some((10, 40)));
+        // A huge radius is clamped, not an overflow.
+        assert_eq!(local_maxima(&g, usize::MAX).len(), 1);
     }
 
     #[test]
