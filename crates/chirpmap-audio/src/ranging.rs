@@ -1,0 +1,347 @@
+//! Per-chirp ranging: the path difference Δd between the direct sound and
+//! the first reflection (paper §II.A Eq. 2–3, §IV), by three methods.
+//!
+//! - [`Method::Gap`] — the paper's: short FFT frames across the chirp, each
+//!   magnitude spectrum Savitzky–Golay-smoothed, the direct peak picked by
+//!   prediction (f at the time since the direct onset), the reflected peak
+//!   beside it (higher for a down-chirp), Δf = gap, Δd = a·Δf·T/B. The
+//!   median over frames is the chirp's estimate. Frames of `sqrt(T/B)`
+//!   balance bin width against the sweep's smear within a frame, which
+//!   gives the resolution floor a·sqrt(T/B) (DESIGN.md, physics notes).
+//! - [`Method::Matched`] — ours: correlate with the known chirp, take the
+//!   envelope (analytic signal), Δt between the direct and the first
+//!   reflection peaks, each refined to a fraction of a sample.
+//! - [`Method::Dechirp`] — ours: multiply the recording by the conjugate
+//!   reference aligned on the direct arrival; the direct becomes a tone near
+//!   0 Hz and a reflection Δt later a tone at |rate|·Δt, measured over the
+//!   whole chirp (resolution 1/T Hz instead of sqrt(B/T)). Taking the
+//!   difference of the two tones cancels any residual misalignment.
+
+use crate::detect::ChirpTemplate;
+use crate::filter::SavitzkyGolay;
+use crate::spectrum::{FftCache, hann, magnitude_spectrum, parabolic_offset, peak_in};
+use chirpmap_core::{Point, Sweep};
+use rustfft::num_complex::Complex32;
+use serde::{Deserialize, Serialize};
+use std::collections::HashMap;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Method {
+    Gap,
+    Matched,
+    Dechirp,
+}
+
+impl Method {
+    pub const ALL: [Method; 3] = [Method::Gap, Method::Matched, Method::Dechirp];
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Gap => "gap",
+            Method::Matched => "matched",
+            Method::Dechirp => "dechirp",
+        }
+    }
+}
+
+impl std::str::FromStr for Method {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "gap" => Ok(Method::Gap),
+            "matched" => Ok(Method::Matched),
+            "dechirp" => Ok(Method::Dechirp),
+            o => Err(format!("unknown method {o:?}: use gap, matched or dechirp")),
+        }
+    }
+}
+
+/// Search limits for the reflection.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RangeLimits {
+    pub speed_of_sound_mps: f64,
+    /// Largest Δd searched (m). Reflections later than this are ignored.
+    pub max_delta_d_m: f64,
+    /// Smallest Δd searched by the matched and dechirp methods (m); the gap
+    /// method uses its resolution floor instead.
+    pub min_delta_d_m: f64,
+}
+
+impl RangeLimits {
+    /// Defaults (ours): Δd up to min(60 m, a·T/2), down to 0.3 m.
+    pub fn for_chirp(duration_s: f64, speed_of_sound_mps: f64) -> Self {
+        Self {
+            speed_of_sound_mps,
+            max_delta_d_m: (0.5 * speed_of_sound_mps * duration_s).min(60.0),
+            min_delta_d_m: 0.3,
+        }
+    }
+}
+
+/// One chirp's estimate.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Estimate {
+    /// Frequency gap between the reflected and the direct sound (Hz); for
+    /// matched filtering the gap equivalent to the measured delay.
+    pub delta_f_hz: f64,
+    pub delta_d_m: f64,
+    /// Reflected-to-direct amplitude ratio.
+    pub relative_level: f64,
+}
+
+/// The gap method's resolution floor a·sqrt(T/B) (m).
+pub fn gap_floor_m(tpl: &ChirpTemplate, speed_of_sound_mps: f64) -> f64 {
+    speed_of_sound_mps / tpl.rate_abs().sqrt()
+}
+
+/// Index of the first local maximum in `v[lo..hi]` at least `frac` × the
+/// largest value there and above `floor`. "First" = the earliest reflection
+/// (issue 5: the first reflection after the direct path).
+fn first_strong_peak(v: &[f64], lo: usize, hi: usize, frac: f64, floor: f64) -> Option<usize> {
+    let hi = hi.min(v.len());
+    if lo + 2 >= hi {
+        return None;
+    }
+    let strongest = v[lo..hi].iter().copied().fold(0.0, f64::max);
+    let level = (frac * strongest).max(floor);
+    if !(strongest >= level && strongest > 0.0) {
+        return None;
+    }
+    (lo.max(1)..hi.min(v.len() - 1)).find(|&i| v[i] >= level && v[i] >= v[i - 1] && v[i] >= v[i + 1])
+}
+
+fn median_of(v: &[f64]) -> f64 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    let mut s = v.to_vec();
+    let mid = s.len() / 2;
+    *s.select_nth_unstable_by(mid, f64::total_cmp).1
+}
+
+/// Ranging engine with cached FFT plans and template spectra.
+#[derive(Debug, Default)]
+pub struct Ranger {
+    cache: FftCache,
+    spectra: HashMap<usize, Vec<Complex32>>,
+}
+
+impl Ranger {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Estimates Δd for the chirp whose direct arrival starts at sample
+    /// `onset` of `x` (high-passed). `None` when no reflection stands out or
+    /// the chirp does not fit in `x`.
+    pub fn estimate(
+        &mut self,
+        method: Method,
+        x: &[f32],
+        onset: usize,
+        tpl: &ChirpTemplate,
+        lim: &RangeLimits,
+    ) -> Option<Estimate> {
+        match method {
+            Method::Gap => self.gap(x, onset, tpl, lim),
+            Method::Matched => self.matched(x, onset, tpl, lim),
+            Method::Dechirp => self.dechirp(x, onset, tpl, lim),
+        }
+    }
+
+    fn gap(&mut self, x: &[f32], onset: usize, tpl: &ChirpTemplate, lim: &RangeLimits) -> Option<Estimate> {
+        let fs = tpl.sample_rate_hz;
+        let t = tpl.chirp.duration_s();
+        let rate = tpl.rate_abs();
+        let a = lim.speed_of_sound_mps;
+        let frame = ((fs / rate.sqrt()).round() as usize).max(32);
+        let frame_s = frame as f64 / fs;
+        let nfft = (frame * 8).next_power_of_two();
+        let bin_hz = fs / nfft as f64;
+        let sg = SavitzkyGolay::new((nfft / frame) | 1, 2).ok()?;
+        let guard_hz = rate.sqrt();
+        let df_max = rate * lim.max_delta_d_m / a;
+        let dir = tpl.direction();
+        // Frames start once every reflection up to max Δd has arrived.
+        let t0 = lim.max_delta_d_m / a;
+        let t1 = t - frame_s;
+        if t1 <= t0 || onset + tpl.len() > x.len() {
+            return None;
+        }
+        let n_frames = (((t1 - t0) / frame_s).floor() as usize + 1).min(48);
+        let mut gaps = Vec::with_capacity(n_frames);
+        let mut levels = Vec::with_capacity(n_frames);
+        for k in 0..n_frames {
+            let ts = if n_frames == 1 { t0 } else { t0 + (t1 - t0) * k as f64 / (n_frames - 1) as f64 };
+            let s = onset + (ts * fs).round() as usize;
+            let Some(seg) = x.get(s..s + frame) else { continue };
+            let spec = sg.smooth(&magnitude_spectrum(&mut self.cache, seg, nfft));
+            let tc = (s - onset) as f64 / fs + 0.5 * frame_s;
+            let Some(f_pred) = tpl.chirp.freq_at(tc) else { continue };
+            let bin = |f: f64| (f / bin_hz).round().max(0.0) as usize;
+            let Some((pd, vd)) = peak_in(&spec, bin(f_pred - 0.5 * guard_hz), bin(f_pred + 0.5 * guard_hz) + 1)
+            else {
+                continue;
+            };
+            let f_d = pd * bin_hz;
+            let (lo_f, hi_f) =
+                if dir > 0.0 { (f_d + guard_hz, f_d + df_max) } else { (f_d - df_max, f_d - guard_hz) };
+            let (lo, hi) = (bin(lo_f.max(0.0)), bin(hi_f.max(0.0)) + 1);
+            if lo + 3 >= hi.min(spec.len()) {
+                continue;
+            }
+            let floor = 4.0 * median_of(&spec[lo..hi.min(spec.len())]);
+            // Scan outward from the direct peak for the nearest strong peak.
+            let pick = if dir > 0.0 {
+                first_strong_peak(&spec, lo, hi, 0.3, floor)
+            } else {
+                let rev: Vec<f64> = spec[lo..hi.min(spec.len())].iter().rev().copied().collect();
+                first_strong_peak(&rev, 0, rev.len(), 0.3, floor).map(|i| hi.min(spec.len()) - 1 - i)
+            };
+            let Some(i) = pick else { continue };
+            let Some((pr, vr)) = peak_in(&spec, i.saturating_sub(1), i + 2) else { continue };
+            gaps.push((pr * bin_hz - f_d).abs());
+            levels.push(vr / vd.max(1e-30));
+        }
+        if gaps.is_empty() {
+            return None;
+        }
+        let delta_f_hz = median_of(&gaps);
+        Some(Estimate { delta_f_hz, delta_d_m: a * delta_f_hz / rate, relative_level: median_of(&levels) })
+    }
+
+    fn matched(&mut self, x: &[f32], onset: usize, tpl: &ChirpTemplate, lim: &RangeLimits) -> Option<Estimate> {
+        let fs = tpl.sample_rate_hz;
+        let a = lim.speed_of_sound_mps;
+        let m = tpl.len();
+        let pad = 64usize;
+        let dmax = (lim.max_delta_d_m / a * fs).ceil() as usize;
+        let start = onset.checked_sub(pad)?;
+        let len = m + dmax + 2 * pad;
+        let seg = x.get(start..(start + len).min(x.len()))?;
+        if seg.len() < m + 2 * pad {
+            return None;
+        }
+        let nfft = len.next_power_of_two();
+        let h = {
+            let cache = &mut self.cache;
+            self.spectra.entry(nfft).or_insert_with(|| tpl.conj_spectrum(cache, nfft)).clone()
+        };
+        let mut buf = vec![Complex32::new(0.0, 0.0); nfft];
+        for (b, v) in buf.iter_mut().zip(seg) {
+            b.re = *v;
+        }
+        self.cache.forward(&mut buf);
+        // Analytic correlation: keep positive frequencies (doubled).
+        for (k, (b, hh)) in buf.iter_mut().zip(&h).enumerate() {
+            *b = if k == 0 || k == nfft / 2 {
+                *b * hh
+            } else if k < nfft / 2 {
+                *b * hh * 2.0
+            } else {
+                Complex32::new(0.0, 0.0)
+            };
+        }
+        self.cache.inverse(&mut buf);
+        let n_lags = (seg.len() - m + 1).min(nfft);
+        let env: Vec<f64> = buf[..n_lags].iter().map(|c| f64::from(c.norm())).collect();
+        let (pd, vd) = peak_in(&env, 0, 2 * pad + 1)?;
+        let lo = (pd + lim.min_delta_d_m / a * fs).ceil() as usize;
+        let hi = ((pd + lim.max_delta_d_m / a * fs).floor() as usize).min(env.len());
+        if lo + 3 >= hi {
+            return None;
+        }
+        let floor = 6.0 * median_of(&env[lo..hi]);
+        let i = first_strong_peak(&env, lo, hi, 0.3, floor)?;
+        let (l, c, r) = (env[i - 1], env[i], env[i + 1]);
+        let pr = i as f64 + parabolic_offset(l, c, r);
+        let dt = (pr - pd) / fs;
+        Some(Estimate { delta_f_hz: dt * tpl.rate_abs(), delta_d_m: a * dt, relative_level: c / vd.max(1e-30) })
+    }
+
+    fn dechirp(&mut self, x: &[f32], onset: usize, tpl: &ChirpTemplate, lim: &RangeLimits) -> Option<Estimate> {
+        let fs = tpl.sample_rate_hz;
+        let a = lim.speed_of_sound_mps;
+        let m = tpl.len();
+        let seg = x.get(onset..onset + m)?;
+        let nfft = m.next_power_of_two();
+        let w = hann(m);
+        let mut buf = vec![Complex32::new(0.0, 0.0); nfft];
+        for i in 0..m {
+            buf[i] = tpl.mix[i] * (seg[i] * w[i]);
+        }
+        self.cache.forward(&mut buf);
+        let bin_hz = fs / nfft as f64;
+        let rate = tpl.rate_abs();
+        // Re-index so that index `off` is 0 Hz and increasing index is the
+        // direction in which reflections appear.
+        let off = 8usize;
+        let kmax = ((rate * lim.max_delta_d_m / a) / bin_hz).ceil() as usize + off + 2;
+        let kmax = kmax.min(nfft / 2);
+        let down = tpl.direction() > 0.0;
+        let v: Vec<f64> = (0..kmax)
+            .map(|j| {
+                let f = j as isize - off as isize;
+                let f = if down { f } else { -f };
+                let idx = f.rem_euclid(nfft as isize) as usize;
+                f64::from(buf[idx].norm())
+            })
+            .collect();
+        let (pd, vd) = peak_in(&v, off - 4, off + 5)?;
+        let lo = (pd + (rate * lim.min_delta_d_m / a) / bin_hz).ceil() as usize;
+        if lo + 3 >= v.len() {
+            return None;
+        }
+        let floor = 6.0 * median_of(&v[lo..]);
+        let i = first_strong_peak(&v, lo, v.len(), 0.3, floor)?;
+        let (pr, vr) = peak_in(&v, i - 1, i + 2)?;
+        let delta_f_hz = (pr - pd) * bin_hz;
+        Some(Estimate { delta_f_hz, delta_d_m: a * delta_f_hz / rate, relative_level: vr / vd.max(1e-30) })
+    }
+}
+
+/// Perpendicular distance from the speaker to a flat wall, from Δd.
+///
+/// The wall is the line `{p : (p − S)·n = h}`, `n` the unit vector from the
+/// speaker toward the wall. The image of S is `S + 2h·n`, and the reflected
+/// path is `|S + 2h·n − M| = D + Δd`; solving the quadratic in h:
+/// `h = (n·v + sqrt((n·v)² + (D+Δd)² − D²)) / 2` with `v = M − S`.
+pub fn wall_distance_m(speaker: Point, mic: Point, wall_normal: Point, delta_d_m: f64) -> Option<f64> {
+    let n = wall_normal.normalized();
+    if !n.is_finite() || !delta_d_m.is_finite() || delta_d_m < 0.0 {
+        return None;
+    }
+    let v = mic - speaker;
+    let d = v.norm();
+    let nv = n.dot(v);
+    let disc = nv * nv + (d + delta_d_m).powi(2) - d * d;
+    (disc >= 0.0).then(|| 0.5 * (nv + disc.sqrt()))
+}
+
+/// Path difference Δd that a wall at perpendicular distance `h` produces
+/// (the inverse of [`wall_distance_m`]).
+pub fn delta_d_for_wall(speaker: Point, mic: Point, wall_normal: Point, h_m: f64) -> f64 {
+    let n = wall_normal.normalized();
+    let image = speaker + n * (2.0 * h_m);
+    image.dist(mic) - speaker.dist(mic)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn wall_distance_inverts_geometry() {
+        let s = Point::new(0.0, 0.0);
+        let m = Point::new(2.0, 1.0);
+        let n = Point::new(0.0, -1.0);
+        for h in [3.0, 5.5, 10.0] {
+            let dd = delta_d_for_wall(s, m, n, h);
+            // Hand check for h = 3: image (0,-6), |(-2,-7)| = 7.2801, D = 2.2361.
+            if h == 3.0 {
+                assert!((dd - (53f64.sqrt() - 5f64.sqrt())).abs() < 1e-12);
+            }
+            assert!((wall_distance_m(s, m, n, dd).unwrap() - h).abs() < 1e-9);
+        }
+    }
+}
