@@ -89,10 +89,15 @@ pub struct Estimate {
     pub relative_level: f64,
 }
 
-/// The gap method's resolution floor a·sqrt(T/B) (m).
+/// The gap method's resolution floor a·sqrt(T/B) (m) (DESIGN.md). With
+/// Hann frames of sqrt(T/B) the two peaks are reliably separate only from
+/// about [`GAP_RELIABLE_FACTOR`] × this floor (measured, EXPERIMENTS.md).
 pub fn gap_floor_m(tpl: &ChirpTemplate, speed_of_sound_mps: f64) -> f64 {
     speed_of_sound_mps / tpl.rate_abs().sqrt()
 }
+
+/// Multiple of [`gap_floor_m`] above which the gap method meets 5 % (measured).
+pub const GAP_RELIABLE_FACTOR: f64 = 2.5;
 
 /// Index of the first local maximum in `v[lo..hi]` at least `frac` × the
 /// largest value there and above `floor`. "First" = the earliest reflection
@@ -119,12 +124,38 @@ fn median_of(v: &[f64]) -> f64 {
     *s.select_nth_unstable_by(mid, f64::total_cmp).1
 }
 
-/// Ranging engine with cached FFT plans and template spectra.
+/// Keeps `v[i]` only where it is at least `ratio` × the direct path's own
+/// response `model` (scaled so that its value at the direct peak equals the
+/// measured one); elsewhere 0. The direct sound is 10–30 dB louder than a
+/// wall echo, and its sidelobes (matched filter) or smeared skirt (gap)
+/// would otherwise be taken for the nearest reflection.
+/// The model is first widened by a running maximum over ±`MODEL_SPREAD`
+/// samples, so a fractional-sample offset between the model and the data
+/// cannot slip a sidelobe through a ripple null.
+fn above_direct(v: &[f64], model: &[f64], scale: f64, ratio: f64) -> Vec<f64> {
+    let at = |i: usize| model.get(i).copied().unwrap_or(0.0);
+    v.iter()
+        .enumerate()
+        .map(|(i, &x)| {
+            let m = (i.saturating_sub(MODEL_SPREAD)..=i + MODEL_SPREAD).map(at).fold(0.0, f64::max);
+            if x >= ratio * scale * m { x } else { 0.0 }
+        })
+        .collect()
+}
+
+const MODEL_SPREAD: usize = 3;
+
+/// Ranging engine with cached FFT plans and direct-path responses.
 #[derive(Debug, Default)]
 pub struct Ranger {
-    cache: FftCache,
+    pub(crate) cache: FftCache,
     spectra: HashMap<usize, Vec<Complex32>>,
+    /// Direct-only responses of the template, keyed by method and layout.
+    models: HashMap<(Method, usize, usize), Vec<f64>>,
 }
+
+/// How far above the direct path's own response a reflection must stand.
+const DIRECT_MARGIN: f64 = 3.0;
 
 impl Ranger {
     pub fn new() -> Self {
@@ -173,30 +204,39 @@ impl Ranger {
         let mut levels = Vec::with_capacity(n_frames);
         for k in 0..n_frames {
             let ts = if n_frames == 1 { t0 } else { t0 + (t1 - t0) * k as f64 / (n_frames - 1) as f64 };
-            let s = onset + (ts * fs).round() as usize;
-            let Some(seg) = x.get(s..s + frame) else { continue };
+            let off = (ts * fs).round() as usize;
+            let Some(seg) = x.get(onset + off..onset + off + frame) else { continue };
             let spec = sg.smooth(&magnitude_spectrum(&mut self.cache, seg, nfft));
-            let tc = (s - onset) as f64 / fs + 0.5 * frame_s;
+            let model = match self.models.get(&(Method::Gap, off, frame)) {
+                Some(m) => m.clone(),
+                None => {
+                    let tseg = tpl.real.get(off..off + frame)?;
+                    let m = sg.smooth(&magnitude_spectrum(&mut self.cache, tseg, nfft));
+                    self.models.insert((Method::Gap, off, frame), m.clone());
+                    m
+                }
+            };
+            let tc = off as f64 / fs + 0.5 * frame_s;
             let Some(f_pred) = tpl.chirp.freq_at(tc) else { continue };
             let bin = |f: f64| (f / bin_hz).round().max(0.0) as usize;
-            let Some((pd, vd)) = peak_in(&spec, bin(f_pred - 0.5 * guard_hz), bin(f_pred + 0.5 * guard_hz) + 1)
-            else {
-                continue;
-            };
+            let (blo, bhi) = (bin(f_pred - 0.5 * guard_hz), bin(f_pred + 0.5 * guard_hz) + 1);
+            let Some((pd, vd)) = peak_in(&spec, blo, bhi) else { continue };
+            let Some((_, md)) = peak_in(&model, blo, bhi) else { continue };
             let f_d = pd * bin_hz;
             let (lo_f, hi_f) =
                 if dir > 0.0 { (f_d + guard_hz, f_d + df_max) } else { (f_d - df_max, f_d - guard_hz) };
-            let (lo, hi) = (bin(lo_f.max(0.0)), bin(hi_f.max(0.0)) + 1);
-            if lo + 3 >= hi.min(spec.len()) {
+            let (lo, hi) = (bin(lo_f.max(0.0)), (bin(hi_f.max(0.0)) + 1).min(spec.len()));
+            if lo + 3 >= hi {
                 continue;
             }
-            let floor = 4.0 * median_of(&spec[lo..hi.min(spec.len())]);
+            let floor = 4.0 * median_of(&spec[lo..hi]);
+            let masked = above_direct(&spec, &model, vd / md.max(1e-30), DIRECT_MARGIN);
             // Scan outward from the direct peak for the nearest strong peak.
             let pick = if dir > 0.0 {
-                first_strong_peak(&spec, lo, hi, 0.3, floor)
+                first_strong_peak(&masked, lo, hi, 0.3, floor)
             } else {
-                let rev: Vec<f64> = spec[lo..hi.min(spec.len())].iter().rev().copied().collect();
-                first_strong_peak(&rev, 0, rev.len(), 0.3, floor).map(|i| hi.min(spec.len()) - 1 - i)
+                let rev: Vec<f64> = masked[lo..hi].iter().rev().copied().collect();
+                first_strong_peak(&rev, 0, rev.len(), 0.3, floor).map(|i| hi - 1 - i)
             };
             let Some(i) = pick else { continue };
             let Some((pr, vr)) = peak_in(&spec, i.saturating_sub(1), i + 2) else { continue };
@@ -208,6 +248,33 @@ impl Ranger {
         }
         let delta_f_hz = median_of(&gaps);
         Some(Estimate { delta_f_hz, delta_d_m: a * delta_f_hz / rate, relative_level: median_of(&levels) })
+    }
+
+    /// Envelope of the correlation of `seg` with the template (analytic
+    /// signal: negative frequencies removed), lags `0..=seg.len() − m`.
+    fn matched_envelope(&mut self, seg: &[f32], tpl: &ChirpTemplate, nfft: usize) -> Vec<f64> {
+        let m = tpl.len();
+        let h = {
+            let cache = &mut self.cache;
+            self.spectra.entry(nfft).or_insert_with(|| tpl.conj_spectrum(cache, nfft)).clone()
+        };
+        let mut buf = vec![Complex32::new(0.0, 0.0); nfft];
+        for (b, v) in buf.iter_mut().zip(seg) {
+            b.re = *v;
+        }
+        self.cache.forward(&mut buf);
+        for (k, (b, hh)) in buf.iter_mut().zip(&h).enumerate() {
+            *b = if k == 0 || k == nfft / 2 {
+                *b * hh
+            } else if k < nfft / 2 {
+                *b * hh * 2.0
+            } else {
+                Complex32::new(0.0, 0.0)
+            };
+        }
+        self.cache.inverse(&mut buf);
+        let n_lags = (seg.len() + 1).saturating_sub(m).min(nfft);
+        buf[..n_lags].iter().map(|c| f64::from(c.norm())).collect()
     }
 
     fn matched(&mut self, x: &[f32], onset: usize, tpl: &ChirpTemplate, lim: &RangeLimits) -> Option<Estimate> {
@@ -223,40 +290,55 @@ impl Ranger {
             return None;
         }
         let nfft = len.next_power_of_two();
-        let h = {
-            let cache = &mut self.cache;
-            self.spectra.entry(nfft).or_insert_with(|| tpl.conj_spectrum(cache, nfft)).clone()
+        let env = self.matched_envelope(seg, tpl, nfft);
+        let model = match self.models.get(&(Method::Matched, nfft, len)) {
+            Some(v) => v.clone(),
+            None => {
+                // The template alone at lag `pad`, shifted to lag 0.
+                let mut own = vec![0.0f32; len + pad];
+                own[pad..pad + m].copy_from_slice(&tpl.real);
+                let e = self.matched_envelope(&own, tpl, (len + pad).next_power_of_two());
+                let v: Vec<f64> = e[pad..].to_vec();
+                self.models.insert((Method::Matched, nfft, len), v.clone());
+                v
+            }
         };
-        let mut buf = vec![Complex32::new(0.0, 0.0); nfft];
-        for (b, v) in buf.iter_mut().zip(seg) {
-            b.re = *v;
-        }
-        self.cache.forward(&mut buf);
-        // Analytic correlation: keep positive frequencies (doubled).
-        for (k, (b, hh)) in buf.iter_mut().zip(&h).enumerate() {
-            *b = if k == 0 || k == nfft / 2 {
-                *b * hh
-            } else if k < nfft / 2 {
-                *b * hh * 2.0
-            } else {
-                Complex32::new(0.0, 0.0)
-            };
-        }
-        self.cache.inverse(&mut buf);
-        let n_lags = (seg.len() - m + 1).min(nfft);
-        let env: Vec<f64> = buf[..n_lags].iter().map(|c| f64::from(c.norm())).collect();
         let (pd, vd) = peak_in(&env, 0, 2 * pad + 1)?;
+        let shift = pd.round() as usize;
+        let shifted: Vec<f64> = (0..env.len()).map(|i| i.checked_sub(shift).map_or(0.0, |j| model.get(j).copied().unwrap_or(0.0))).collect();
         let lo = (pd + lim.min_delta_d_m / a * fs).ceil() as usize;
         let hi = ((pd + lim.max_delta_d_m / a * fs).floor() as usize).min(env.len());
         if lo + 3 >= hi {
             return None;
         }
         let floor = 6.0 * median_of(&env[lo..hi]);
-        let i = first_strong_peak(&env, lo, hi, 0.3, floor)?;
+        let masked = above_direct(&env, &shifted, vd / model[0].max(1e-30), DIRECT_MARGIN);
+        let i = first_strong_peak(&masked, lo, hi, 0.3, floor)?;
         let (l, c, r) = (env[i - 1], env[i], env[i + 1]);
         let pr = i as f64 + parabolic_offset(l, c, r);
         let dt = (pr - pd) / fs;
         Some(Estimate { delta_f_hz: dt * tpl.rate_abs(), delta_d_m: a * dt, relative_level: c / vd.max(1e-30) })
+    }
+
+    /// Magnitude of the dechirped spectrum of `seg` (length m), re-indexed so
+    /// that index `DECHIRP_OFF` is 0 Hz and reflections lie at higher indices.
+    fn dechirp_spectrum(&mut self, seg: &[f32], tpl: &ChirpTemplate, kmax: usize) -> Vec<f64> {
+        let m = tpl.len();
+        let nfft = m.next_power_of_two();
+        let w = hann(m);
+        let mut buf = vec![Complex32::new(0.0, 0.0); nfft];
+        for i in 0..m.min(seg.len()) {
+            buf[i] = tpl.mix[i] * (seg[i] * w[i]);
+        }
+        self.cache.forward(&mut buf);
+        let down = tpl.direction() > 0.0;
+        (0..kmax.min(nfft / 2))
+            .map(|j| {
+                let f = j as isize - DECHIRP_OFF as isize;
+                let f = if down { f } else { -f };
+                f64::from(buf[f.rem_euclid(nfft as isize) as usize].norm())
+            })
+            .collect()
     }
 
     fn dechirp(&mut self, x: &[f32], onset: usize, tpl: &ChirpTemplate, lim: &RangeLimits) -> Option<Estimate> {
@@ -265,40 +347,35 @@ impl Ranger {
         let m = tpl.len();
         let seg = x.get(onset..onset + m)?;
         let nfft = m.next_power_of_two();
-        let w = hann(m);
-        let mut buf = vec![Complex32::new(0.0, 0.0); nfft];
-        for i in 0..m {
-            buf[i] = tpl.mix[i] * (seg[i] * w[i]);
-        }
-        self.cache.forward(&mut buf);
         let bin_hz = fs / nfft as f64;
         let rate = tpl.rate_abs();
-        // Re-index so that index `off` is 0 Hz and increasing index is the
-        // direction in which reflections appear.
-        let off = 8usize;
-        let kmax = ((rate * lim.max_delta_d_m / a) / bin_hz).ceil() as usize + off + 2;
-        let kmax = kmax.min(nfft / 2);
-        let down = tpl.direction() > 0.0;
-        let v: Vec<f64> = (0..kmax)
-            .map(|j| {
-                let f = j as isize - off as isize;
-                let f = if down { f } else { -f };
-                let idx = f.rem_euclid(nfft as isize) as usize;
-                f64::from(buf[idx].norm())
-            })
-            .collect();
-        let (pd, vd) = peak_in(&v, off - 4, off + 5)?;
+        let kmax = ((rate * lim.max_delta_d_m / a) / bin_hz).ceil() as usize + DECHIRP_OFF + 2;
+        let v = self.dechirp_spectrum(seg, tpl, kmax);
+        let model = match self.models.get(&(Method::Dechirp, m, kmax)) {
+            Some(v) => v.clone(),
+            None => {
+                let own = tpl.real.clone();
+                let v = self.dechirp_spectrum(&own, tpl, kmax);
+                self.models.insert((Method::Dechirp, m, kmax), v.clone());
+                v
+            }
+        };
+        let (pd, vd) = peak_in(&v, DECHIRP_OFF - 4, DECHIRP_OFF + 5)?;
         let lo = (pd + (rate * lim.min_delta_d_m / a) / bin_hz).ceil() as usize;
         if lo + 3 >= v.len() {
             return None;
         }
         let floor = 6.0 * median_of(&v[lo..]);
-        let i = first_strong_peak(&v, lo, v.len(), 0.3, floor)?;
+        let masked = above_direct(&v, &model, vd / model[DECHIRP_OFF].max(1e-30), DIRECT_MARGIN);
+        let i = first_strong_peak(&masked, lo, v.len(), 0.3, floor)?;
         let (pr, vr) = peak_in(&v, i - 1, i + 2)?;
         let delta_f_hz = (pr - pd) * bin_hz;
         Some(Estimate { delta_f_hz, delta_d_m: a * delta_f_hz / rate, relative_level: vr / vd.max(1e-30) })
     }
 }
+
+/// Index of 0 Hz in [`Ranger::dechirp_spectrum`]'s output.
+const DECHIRP_OFF: usize = 8;
 
 /// Perpendicular distance from the speaker to a flat wall, from Δd.
 ///
@@ -344,4 +421,31 @@ mod tests {
             assert!((wall_distance_m(s, m, n, dd).unwrap() - h).abs() < 1e-9);
         }
     }
+}
+
+/// One detected chirp and its estimate (if a reflection was found).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ChirpResult {
+    pub index: usize,
+    pub onset_s: f64,
+    pub estimate: Option<Estimate>,
+}
+
+/// Detects every chirp in the high-passed signal `x` and ranges each one
+/// with `method` (the paper's per-chirp processing, §IV.A).
+pub fn range_signal(
+    x: &[f32],
+    tpl: &ChirpTemplate,
+    methods: &[Method],
+    lim: &RangeLimits,
+) -> Result<Vec<(crate::detect::Detection, Vec<Option<Estimate>>)>, crate::error::AudioError> {
+    let mut ranger = Ranger::new();
+    let dets = crate::detect::detect_chirps(x, tpl, &mut ranger.cache)?;
+    Ok(dets
+        .into_iter()
+        .map(|d| {
+            let est = methods.iter().map(|&m| ranger.estimate(m, x, d.onset_sample, tpl, lim)).collect();
+            (d, est)
+        })
+        .collect())
 }
