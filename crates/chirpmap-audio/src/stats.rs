@@ -43,7 +43,7 @@ mod tests {
         assert_eq!(median(&[4.0, 1.0, 2.0, 3.0]), Some(2.5));
         assert_eq!(median(&[f64::NAN]), None);
         let v: Vec<f64> = (1..=100).map(f64::from).collect();
-        // n = 100: ranks 50 ∓ 9.8 → 41st and 60th values.
-        assert_eq!(median_ci95(&v), Some([41.0, 60.0]));
+        // n = 100: ranks 50 ∓ 9.8 → the 40th (floor 40.2) and 60th (ceil 59.8) values.
+        assert_eq!(median_ci95(&v), Some([40.0, 60.0]));
     }
 }

@@ -1,14 +1,20 @@
 //! WAV reading and writing.
 //!
-//! Parsing of the RIFF container is delegated to `hound` (3.5), which reads
-//! 8/16/24/32-bit integer PCM and 32-bit IEEE float, plain and
-//! `WAVE_FORMAT_EXTENSIBLE` headers, and skips unknown chunks (`LIST`, `bext`,
-//! AudioMoth's `guan`-style metadata). This module adds what the pipeline
-//! needs on top: one error type with clear messages, a truncation check, a
-//! clipping count, and conversion to `f32` in [-1, 1] per channel.
+//! Reading is our own RIFF walker, not `hound`: hound 3.5.1 (checked in its
+//! `read.rs`) skips an unknown chunk by its declared length without the RIFF
+//! pad byte that follows an odd-sized chunk, so it misreads files with an
+//! odd-length `LIST`/metadata chunk, and it reports a truncated file as a
+//! generic I/O error ("Failed to read enough bytes") rather than as
+//! truncation. Decoding straight from the byte slice is also several times
+//! faster than hound's per-sample iterator, which matters for hour-long
+//! recordings. Writing uses `hound` (correct and well kept).
+//!
+//! Supported: PCM (format tag 1) 16/24/32-bit integer, IEEE float (tag 3)
+//! 32-bit, and `WAVE_FORMAT_EXTENSIBLE` (tag 0xFFFE) with either subformat;
+//! any number of channels; unknown chunks (`LIST`, `bext`, `guan`, `fact`, …)
+//! are skipped, pad bytes included.
 
 use crate::error::AudioError;
-use std::io::Cursor;
 use std::path::Path;
 
 /// Sample encoding in the file.
@@ -63,106 +69,122 @@ impl Recording {
     }
 }
 
-fn map_hound(e: hound::Error) -> AudioError {
-    match e {
-        hound::Error::IoError(io) if io.kind() == std::io::ErrorKind::UnexpectedEof => {
-            AudioError::Truncated(format!("the file ends inside a header or chunk ({io})"))
-        }
-        hound::Error::IoError(io) => AudioError::NotWav(io.to_string()),
-        hound::Error::FormatError(m) => AudioError::NotWav(m.to_string()),
-        hound::Error::Unsupported => AudioError::Unsupported("this WAV encoding".into()),
-        hound::Error::InvalidSampleFormat => AudioError::Unsupported("invalid sample format".into()),
-        hound::Error::TooWide => AudioError::Unsupported("sample wider than 32 bits".into()),
-        hound::Error::UnfinishedSample => AudioError::Truncated("the data ends inside a sample".into()),
-    }
+fn le_u16(b: &[u8], at: usize) -> Option<u16> {
+    Some(u16::from_le_bytes(b.get(at..at + 2)?.try_into().ok()?))
+}
+fn le_u32(b: &[u8], at: usize) -> Option<u32> {
+    Some(u32::from_le_bytes(b.get(at..at + 4)?.try_into().ok()?))
 }
 
 /// Decodes a WAV file held in memory. Never panics on any input (fuzzed in
-/// `tests/wav_fuzz.rs`).
+/// `tests/wav.rs`).
 pub fn read_wav_bytes(bytes: &[u8]) -> Result<Recording, AudioError> {
-    if bytes.len() < 12 || &bytes[0..4] != b"RIFF" || &bytes[8..12] != b"WAVE" {
-        if bytes.len() < 12 && bytes.starts_with(b"RIFF") {
+    if bytes.len() < 12 {
+        if bytes.len() >= 4 && bytes.starts_with(b"RIFF") {
             return Err(AudioError::Truncated(format!("only {} bytes", bytes.len())));
         }
         return Err(AudioError::NotWav("the file does not start with a RIFF/WAVE header".into()));
     }
-    let reader = hound::WavReader::new(Cursor::new(bytes)).map_err(map_hound)?;
-    let spec = reader.spec();
-    let format = match (spec.sample_format, spec.bits_per_sample) {
-        (hound::SampleFormat::Int, b @ (16 | 24 | 32)) => SampleFormat::Int(b),
-        (hound::SampleFormat::Float, 32) => SampleFormat::Float32,
-        (f, b) => return Err(AudioError::Unsupported(format!("{b}-bit {f:?}"))),
+    if &bytes[0..4] != b"RIFF" || &bytes[8..12] != b"WAVE" {
+        let what = if &bytes[0..4] == b"RF64" { "RF64 (64-bit RIFF)" } else { "the file" };
+        return Err(AudioError::NotWav(format!("{what} does not start with a RIFF/WAVE header")));
+    }
+    let mut pos = 12usize;
+    let mut fmt: Option<(u16, u16, u32, u16)> = None; // (tag, channels, rate, bits)
+    let data = loop {
+        let (Some(id), Some(len)) = (bytes.get(pos..pos + 4), le_u32(bytes, pos + 4)) else {
+            return Err(match fmt {
+                None => AudioError::Truncated("the file ends before a fmt chunk".into()),
+                Some(_) => AudioError::Truncated("the file ends before the data chunk".into()),
+            });
+        };
+        let body = pos + 8;
+        let len = len as usize;
+        match id {
+            b"fmt " => {
+                let f = bytes.get(body..body + len.min(40)).filter(|f| f.len() >= 16).ok_or_else(|| {
+                    AudioError::Truncated("the fmt chunk is cut short".into())
+                })?;
+                let mut tag = le_u16(f, 0).unwrap_or(0);
+                let channels = le_u16(f, 2).unwrap_or(0);
+                let rate = le_u32(f, 4).unwrap_or(0);
+                let bits = le_u16(f, 14).unwrap_or(0);
+                if tag == 0xFFFE {
+                    // Extensible: the subformat GUID starts with the real tag.
+                    tag = le_u16(f, 24).ok_or_else(|| AudioError::Truncated("extensible fmt chunk cut short".into()))?;
+                }
+                fmt = Some((tag, channels, rate, bits));
+            }
+            b"data" => {
+                let Some(f) = fmt else {
+                    return Err(AudioError::NotWav("the data chunk comes before any fmt chunk".into()));
+                };
+                let avail = bytes.len().saturating_sub(body);
+                // Recorders that stream write 0 or 0xFFFFFFFF before they know the length.
+                let declared = if len == 0 || len == u32::MAX as usize { avail } else { len };
+                if declared > avail {
+                    return Err(AudioError::Truncated(format!(
+                        "the data chunk declares {declared} bytes but the file holds {avail} (the file was cut short)"
+                    )));
+                }
+                break (f, &bytes[body..body + declared]);
+            }
+            _ => {}
+        }
+        // Chunks are padded to even length.
+        pos = body.saturating_add(len).saturating_add(len & 1);
     };
-    let n_ch = usize::from(spec.channels);
+    let ((tag, n_ch, rate, bits), data) = data;
+    let format = match (tag, bits) {
+        (1, b @ (16 | 24 | 32)) => SampleFormat::Int(b),
+        (3, 32) => SampleFormat::Float32,
+        (1, b) => return Err(AudioError::Unsupported(format!("{b}-bit integer PCM"))),
+        (3, b) => return Err(AudioError::Unsupported(format!("{b}-bit float"))),
+        (t, _) => return Err(AudioError::Unsupported(format!("format tag {t:#06x} (compressed or unknown)"))),
+    };
+    let n_ch = usize::from(n_ch);
     if n_ch == 0 {
         return Err(AudioError::NotWav("zero channels".into()));
     }
-    if spec.sample_rate == 0 {
+    if rate == 0 {
         return Err(AudioError::NotWav("sample rate 0".into()));
     }
-    // hound reports the data chunk's declared length; a recorder that lost
-    // power leaves a header that promises more than the file holds.
-    let declared = reader.len() as usize;
-    let frames_declared = declared / n_ch;
-    // Guard the allocation against lying headers: never reserve more than
-    // the bytes present could hold.
-    let frames_cap = frames_declared.min(bytes.len() / n_ch / 2 + 1);
-    let mut channels: Vec<Vec<f32>> = (0..n_ch).map(|_| Vec::with_capacity(frames_cap)).collect();
-    let mut clipped = 0usize;
-    let mut got = 0usize;
-    macro_rules! pull {
-        ($iter:expr, $conv:expr, $is_clip:expr) => {
-            for s in $iter {
-                let s = match s {
-                    Ok(s) => s,
-                    Err(hound::Error::IoError(io)) if io.kind() == std::io::ErrorKind::UnexpectedEof => {
-                        return Err(AudioError::Truncated(format!(
-                            "the header declares {frames_declared} frames but the data ends after {} \
-                             (the file was cut short)",
-                            got / n_ch
-                        )));
-                    }
-                    Err(e) => return Err(map_hound(e)),
-                };
-                if $is_clip(s) {
-                    clipped += 1;
-                }
-                channels[got % n_ch].push($conv(s));
-                got += 1;
-            }
-        };
-    }
-    let mut reader = reader;
-    match format {
-        SampleFormat::Int(bits) => {
-            let full = 2f64.powi(i32::from(bits) - 1);
-            let max_i = (full - 1.0) as i64;
-            let scale = (1.0 / full) as f32;
-            pull!(reader.samples::<i32>(), |s: i32| s as f32 * scale, |s: i32| i64::from(s).abs() >= max_i);
-        }
-        SampleFormat::Float32 => {
-            pull!(
-                reader.samples::<f32>(),
-                |s: f32| if s.is_finite() { s } else { 0.0 },
-                |s: f32| !s.is_finite() || s.abs() >= 1.0
-            );
-        }
-    }
-    if got < declared {
-        return Err(AudioError::Truncated(format!(
-            "the header declares {frames_declared} frames but the data holds {}",
-            got / n_ch
-        )));
-    }
-    // A trailing partial frame is dropped so every channel has equal length.
-    let frames = got / n_ch;
-    for c in &mut channels {
-        c.truncate(frames);
-    }
+    let width = usize::from(bits / 8);
+    let frame_bytes = width * n_ch;
+    let frames = data.len() / frame_bytes;
     if frames == 0 {
-        return Err(AudioError::NotWav("the data chunk holds no samples".into()));
+        return Err(AudioError::NotWav("the data chunk holds no complete sample frame".into()));
     }
-    Ok(Recording { sample_rate_hz: spec.sample_rate, format, channels, clipped_samples: clipped })
+    let mut channels: Vec<Vec<f32>> = (0..n_ch).map(|_| Vec::with_capacity(frames)).collect();
+    let mut clipped = 0usize;
+    for frame in data.chunks_exact(frame_bytes) {
+        for (c, s) in channels.iter_mut().zip(frame.chunks_exact(width)) {
+            let v = match format {
+                SampleFormat::Int(16) => {
+                    let i = i16::from_le_bytes([s[0], s[1]]);
+                    clipped += usize::from(i == i16::MAX || i == i16::MIN);
+                    f32::from(i) / 32_768.0
+                }
+                SampleFormat::Int(24) => {
+                    let i = i32::from_le_bytes([0, s[0], s[1], s[2]]) >> 8;
+                    clipped += usize::from(i == 8_388_607 || i == -8_388_608);
+                    i as f32 / 8_388_608.0
+                }
+                SampleFormat::Int(_) => {
+                    let i = i32::from_le_bytes([s[0], s[1], s[2], s[3]]);
+                    clipped += usize::from(i == i32::MAX || i == i32::MIN);
+                    (f64::from(i) / 2_147_483_648.0) as f32
+                }
+                SampleFormat::Float32 => {
+                    let f = f32::from_le_bytes([s[0], s[1], s[2], s[3]]);
+                    clipped += usize::from(!f.is_finite() || f.abs() >= 1.0);
+                    if f.is_finite() { f } else { 0.0 }
+                }
+            };
+            c.push(v);
+        }
+    }
+    Ok(Recording { sample_rate_hz: rate, format, channels, clipped_samples: clipped })
 }
 
 /// Reads a WAV file from disk.
@@ -197,16 +219,16 @@ pub fn write_wav(path: &Path, sample_rate_hz: u32, format: SampleFormat, channel
             let mut w16 = w.get_i16_writer((frames * n_ch) as u32);
             for i in 0..frames {
                 for c in channels {
-                    w16.write_sample((f64::from(c[i]).clamp(-1.0, 1.0) * 32767.0).round() as i16);
+                    w16.write_sample((f64::from(c[i]) * 32_768.0).round().clamp(-32_768.0, 32_767.0) as i16);
                 }
             }
             w16.flush().map_err(werr)?;
         }
         SampleFormat::Int(b) => {
-            let full = if b == 32 { 2_147_483_647.0 } else { f64::from((1u32 << (b - 1)) - 1) };
+            let full = 2f64.powi(i32::from(b) - 1);
             for i in 0..frames {
                 for c in channels {
-                    w.write_sample((f64::from(c[i]).clamp(-1.0, 1.0) * full).round() as i32).map_err(werr)?;
+                    w.write_sample((f64::from(c[i]) * full).round().clamp(-full, full - 1.0) as i32).map_err(werr)?;
                 }
             }
         }
