@@ -185,14 +185,8 @@ impl Ranger {
         let t = tpl.chirp.duration_s();
         let rate = tpl.rate_abs();
         let a = lim.speed_of_sound_mps;
-        let frame = ((fs / rate.sqrt()).round() as usize).max(32);
+        let frame = Self::gap_frame_len(tpl);
         let frame_s = frame as f64 / fs;
-        let nfft = (frame * 8).next_power_of_two();
-        let bin_hz = fs / nfft as f64;
-        let sg = SavitzkyGolay::new((nfft / frame) | 1, 2).ok()?;
-        let guard_hz = rate.sqrt();
-        let df_max = rate * lim.max_delta_d_m / a;
-        let dir = tpl.direction();
         // Frames start once every reflection up to max Δd has arrived.
         let t0 = lim.max_delta_d_m / a;
         let t1 = t - frame_s;
@@ -205,49 +199,127 @@ impl Ranger {
         for k in 0..n_frames {
             let ts = if n_frames == 1 { t0 } else { t0 + (t1 - t0) * k as f64 / (n_frames - 1) as f64 };
             let off = (ts * fs).round() as usize;
-            let Some(seg) = x.get(onset + off..onset + off + frame) else { continue };
-            let spec = sg.smooth(&magnitude_spectrum(&mut self.cache, seg, nfft));
-            let model = match self.models.get(&(Method::Gap, off, frame)) {
-                Some(m) => m.clone(),
-                None => {
-                    let tseg = tpl.real.get(off..off + frame)?;
-                    let m = sg.smooth(&magnitude_spectrum(&mut self.cache, tseg, nfft));
-                    self.models.insert((Method::Gap, off, frame), m.clone());
-                    m
-                }
-            };
-            let tc = off as f64 / fs + 0.5 * frame_s;
-            let Some(f_pred) = tpl.chirp.freq_at(tc) else { continue };
-            let bin = |f: f64| (f / bin_hz).round().max(0.0) as usize;
-            let (blo, bhi) = (bin(f_pred - 0.5 * guard_hz), bin(f_pred + 0.5 * guard_hz) + 1);
-            let Some((pd, vd)) = peak_in(&spec, blo, bhi) else { continue };
-            let Some((_, md)) = peak_in(&model, blo, bhi) else { continue };
-            let f_d = pd * bin_hz;
-            let (lo_f, hi_f) =
-                if dir > 0.0 { (f_d + guard_hz, f_d + df_max) } else { (f_d - df_max, f_d - guard_hz) };
-            let (lo, hi) = (bin(lo_f.max(0.0)), (bin(hi_f.max(0.0)) + 1).min(spec.len()));
-            if lo + 3 >= hi {
-                continue;
+            if let Some((g, l)) = self.gap_frame(x, onset + off, off, frame, tpl, lim) {
+                gaps.push(g);
+                levels.push(l);
             }
-            let floor = 4.0 * median_of(&spec[lo..hi]);
-            let masked = above_direct(&spec, &model, vd / md.max(1e-30), DIRECT_MARGIN);
-            // Scan outward from the direct peak for the nearest strong peak.
-            let pick = if dir > 0.0 {
-                first_strong_peak(&masked, lo, hi, 0.3, floor)
-            } else {
-                let rev: Vec<f64> = masked[lo..hi].iter().rev().copied().collect();
-                first_strong_peak(&rev, 0, rev.len(), 0.3, floor).map(|i| hi - 1 - i)
-            };
-            let Some(i) = pick else { continue };
-            let Some((pr, vr)) = peak_in(&spec, i.saturating_sub(1), i + 2) else { continue };
-            gaps.push((pr * bin_hz - f_d).abs());
-            levels.push(vr / vd.max(1e-30));
         }
         if gaps.is_empty() {
             return None;
         }
         let delta_f_hz = median_of(&gaps);
         Some(Estimate { delta_f_hz, delta_d_m: a * delta_f_hz / rate, relative_level: median_of(&levels) })
+    }
+
+    /// Gap frame size for a template: sqrt(T/B) (see the module docs).
+    pub fn gap_frame_len(tpl: &ChirpTemplate) -> usize {
+        ((tpl.sample_rate_hz / tpl.rate_abs().sqrt()).round() as usize).max(32)
+    }
+
+    /// One frame of the gap method: the frame `x[start..start+frame]` holds
+    /// the direct sound emitted `off` samples after the chirp began. Returns
+    /// the frequency gap (Hz) and the reflected/direct level.
+    pub fn gap_frame(
+        &mut self,
+        x: &[f32],
+        start: usize,
+        off: usize,
+        frame: usize,
+        tpl: &ChirpTemplate,
+        lim: &RangeLimits,
+    ) -> Option<(f64, f64)> {
+        let fs = tpl.sample_rate_hz;
+        let rate = tpl.rate_abs();
+        let a = lim.speed_of_sound_mps;
+        let nfft = (frame * 8).next_power_of_two();
+        let bin_hz = fs / nfft as f64;
+        let sg = SavitzkyGolay::new((nfft / frame) | 1, 2).ok()?;
+        let guard_hz = rate.sqrt();
+        let df_max = rate * lim.max_delta_d_m / a;
+        let dir = tpl.direction();
+        let seg = x.get(start..start + frame)?;
+        let spec = sg.smooth(&magnitude_spectrum(&mut self.cache, seg, nfft));
+        let model = match self.models.get(&(Method::Gap, off, frame)) {
+            Some(m) => m.clone(),
+            None => {
+                let tseg = tpl.real.get(off..off + frame)?;
+                let m = sg.smooth(&magnitude_spectrum(&mut self.cache, tseg, nfft));
+                self.models.insert((Method::Gap, off, frame), m.clone());
+                m
+            }
+        };
+        let tc = (off as f64 + 0.5 * frame as f64) / fs;
+        let f_pred = tpl.chirp.freq_at(tc)?;
+        let bin = |f: f64| (f / bin_hz).round().max(0.0) as usize;
+        let (blo, bhi) = (bin(f_pred - 0.5 * guard_hz), bin(f_pred + 0.5 * guard_hz) + 1);
+        let (pd, vd) = peak_in(&spec, blo, bhi)?;
+        let (_, md) = peak_in(&model, blo, bhi)?;
+        let f_d = pd * bin_hz;
+        let (lo_f, hi_f) = if dir > 0.0 { (f_d + guard_hz, f_d + df_max) } else { (f_d - df_max, f_d - guard_hz) };
+        let (lo, hi) = (bin(lo_f.max(0.0)), (bin(hi_f.max(0.0)) + 1).min(spec.len()));
+        if lo + 3 >= hi {
+            return None;
+        }
+        let floor = 4.0 * median_of(&spec[lo..hi]);
+        let masked = above_direct(&spec, &model, vd / md.max(1e-30), DIRECT_MARGIN);
+        // Scan outward from the direct peak for the nearest strong peak.
+        let i = if dir > 0.0 {
+            first_strong_peak(&masked, lo, hi, 0.3, floor)
+        } else {
+            let rev: Vec<f64> = masked[lo..hi].iter().rev().copied().collect();
+            first_strong_peak(&rev, 0, rev.len(), 0.3, floor).map(|i| hi - 1 - i)
+        }?;
+        let (pr, vr) = peak_in(&spec, i.saturating_sub(1), i + 2)?;
+        Some(((pr * bin_hz - f_d).abs(), vr / vd.max(1e-30)))
+    }
+
+    /// One frame of the dechirp method: `x[start..start+frame]` mixed with
+    /// the reference from template offset `off` (aligned on the direct
+    /// sound). Returns the beat-frequency gap (Hz) and the relative level.
+    pub fn dechirp_frame(
+        &mut self,
+        x: &[f32],
+        start: usize,
+        off: usize,
+        frame: usize,
+        tpl: &ChirpTemplate,
+        lim: &RangeLimits,
+    ) -> Option<(f64, f64)> {
+        let fs = tpl.sample_rate_hz;
+        let a = lim.speed_of_sound_mps;
+        let rate = tpl.rate_abs();
+        let nfft = (frame * 4).next_power_of_two();
+        let bin_hz = fs / nfft as f64;
+        let kmax = (((rate * lim.max_delta_d_m / a) / bin_hz).ceil() as usize + DECHIRP_OFF + 2).min(nfft / 2);
+        let w = hann(frame);
+        let mix = tpl.mix.get(off..off + frame)?;
+        let down = tpl.direction() > 0.0;
+        let spectrum_of = |cache: &mut FftCache, seg: &[f32]| -> Vec<f64> {
+            let mut buf = vec![Complex32::new(0.0, 0.0); nfft];
+            for i in 0..frame {
+                buf[i] = mix[i] * (seg[i] * w[i]);
+            }
+            cache.forward(&mut buf);
+            (0..kmax)
+                .map(|j| {
+                    let f = j as isize - DECHIRP_OFF as isize;
+                    let f = if down { f } else { -f };
+                    f64::from(buf[f.rem_euclid(nfft as isize) as usize].norm())
+                })
+                .collect()
+        };
+        let v = spectrum_of(&mut self.cache, x.get(start..start + frame)?);
+        let model = spectrum_of(&mut self.cache, tpl.real.get(off..off + frame)?);
+        let (pd, vd) = peak_in(&v, DECHIRP_OFF - 4, DECHIRP_OFF + 5)?;
+        let lo = ((pd + (rate * lim.min_delta_d_m / a) / bin_hz).ceil() as usize).max(DECHIRP_OFF + 3);
+        if lo + 3 >= v.len() {
+            return None;
+        }
+        let floor = 6.0 * median_of(&v[lo..]);
+        let masked = above_direct(&v, &model, vd / model[DECHIRP_OFF].max(1e-30), DIRECT_MARGIN);
+        let i = first_strong_peak(&masked, lo, v.len(), 0.3, floor)?;
+        let (pr, vr) = peak_in(&v, i - 1, i + 2)?;
+        Some(((pr - pd) * bin_hz, vr / vd.max(1e-30)))
     }
 
     /// Envelope of the correlation of `seg` with the template (analytic
