@@ -212,6 +212,11 @@ pub fn synthesize(scene: &Scene, cfg: &SynthConfig) -> Result<Synthesized, Audio
         });
     }
     let t_chirp = chirp.duration_s();
+    // Linear sweeps (the paper's) get an inlined phase; others use the trait.
+    let linear = match scene.chirp.kind {
+        chirpmap_core::scene::SweepKind::Linear => Some((chirp.f_start_hz(), 0.5 * (chirp.f_end_hz() - chirp.f_start_hz()) / t_chirp)),
+        chirpmap_core::scene::SweepKind::Exponential => None,
+    };
     let period = t_chirp + cfg.gap_s;
     let total_s = cfg.start_s + cfg.chirps as f64 * period - cfg.gap_s + cfg.tail_s;
     let n = (total_s * fs).ceil() as usize;
@@ -230,16 +235,26 @@ pub fn synthesize(scene: &Scene, cfg: &SynthConfig) -> Result<Synthesized, Audio
             let b1 = (b0 + block).min(n);
             let p_b = listener_position(l, b1 as f64 / fs);
             paths_at(source, &obstacles, p_a, &mut paths);
-            for p in paths.iter_mut() {
-                p.gain /= (p.base_m + p.q.dist(p_a)).max(0.1);
-            }
-            let inv = 1.0 / (b1 - b0) as f64;
-            for (k, out) in y[b0..b1].iter_mut().enumerate() {
-                let t = (b0 + k) as f64 / fs;
-                let pos = p_a + (p_b - p_a) * (k as f64 * inv);
-                let mut acc = 0.0f64;
-                for p in &paths {
-                    let te = t - (p.base_m + p.q.dist(pos)) / a - cfg.start_s;
+            let len = (b1 - b0) as f64;
+            for p in &paths {
+                // Path length at both block ends; the delay is linear in
+                // between to well below a nanosecond (64 samples).
+                let (ra, rb) = (p.base_m + p.q.dist(p_a), p.base_m + p.q.dist(p_b));
+                let gain = p.gain / ra.max(0.1);
+                // Emission time (relative to the first chirp) at the block ends.
+                let te_a = b0 as f64 / fs - ra / a - cfg.start_s;
+                let te_b = b1 as f64 / fs - rb / a - cfg.start_s;
+                let dte = (te_b - te_a) / len;
+                // Skip blocks in which this path carries no chirp.
+                let (k_a, k_b) = ((te_a / period).floor(), (te_b / period).floor());
+                let silent = te_b < 0.0
+                    || k_a >= cfg.chirps as f64
+                    || (k_a == k_b && te_a - k_a * period > t_chirp);
+                if silent {
+                    continue;
+                }
+                for (k, out) in y[b0..b1].iter_mut().enumerate() {
+                    let te = te_a + dte * k as f64;
                     if te < 0.0 {
                         continue;
                     }
@@ -251,11 +266,18 @@ pub fn synthesize(scene: &Scene, cfg: &SynthConfig) -> Result<Synthesized, Audio
                     if tau > t_chirp {
                         continue;
                     }
-                    let ph = chirp.phase_cycles(tau);
-                    let s = (std::f32::consts::TAU * (ph - ph.floor()) as f32).sin();
-                    acc += p.gain * taper_gain(tau, t_chirp, cfg.taper_s) * f64::from(s);
+                    let ph = match linear {
+                        Some((f0, half_rate)) => tau * (f0 + half_rate * tau),
+                        None => chirp.phase_cycles(tau),
+                    };
+                    let sv = (std::f32::consts::TAU * (ph - ph.floor()) as f32).sin();
+                    let g = if tau < cfg.taper_s || t_chirp - tau < cfg.taper_s {
+                        gain * taper_gain(tau, t_chirp, cfg.taper_s)
+                    } else {
+                        gain
+                    };
+                    *out += (g * f64::from(sv)) as f32;
                 }
-                *out = acc as f32;
             }
             p_a = p_b;
         }

@@ -75,10 +75,11 @@ pub fn parse_bounds(s: &str) -> Result<[f64; 4], String> {
     Ok(b)
 }
 
-/// Loads a scene file, naming the file in any error.
+/// Loads a scene file, naming the file in any error. A `[synth]` table
+/// (waveform settings for `chirpmap synth`) is accepted and ignored here.
 pub fn load_scene(path: &Path) -> Result<Scene> {
     let text = std::fs::read_to_string(path).with_context(|| format!("cannot read scene {}", path.display()))?;
-    Scene::from_toml_str(&text).map_err(|e| anyhow!("{}: {e}", path.display()))
+    chirpmap_audio::synth::parse_scene_with_synth(&text).map(|(s, _)| s).map_err(|e| anyhow!("{}: {e}", path.display()))
 }
 
 /// Bounds covering every ellipse, focus and extra point, snapped outward to
