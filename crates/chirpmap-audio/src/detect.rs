@@ -104,8 +104,8 @@ pub const MIN_PEAK_RATIO: f64 = 12.0;
 
 /// Finds every chirp in `x` (high-passed). A chirp is a matched-filter peak
 /// that is the largest within ±0.9 T (chirps do not overlap), at least
-/// [`MIN_PEAK_RATIO`] × the median chunk maximum and at least 5 % of the
-/// strongest chirp. Only chirps whose full template fits in `x` are returned.
+/// [`MIN_PEAK_RATIO`] × the median chunk maximum and at least 1 % of the
+/// strongest chirp (a moving listener's level changes with its distance). Only chirps whose full template fits in `x` are returned.
 pub fn detect_chirps(x: &[f32], tpl: &ChirpTemplate, cache: &mut FftCache) -> Result<Vec<Detection>, AudioError> {
     let m = tpl.len();
     if m == 0 || m > x.len() {
@@ -169,7 +169,7 @@ pub fn detect_chirps(x: &[f32], tpl: &ChirpTemplate, cache: &mut FftCache) -> Re
     if !(ratio >= MIN_PEAK_RATIO) {
         return Err(AudioError::NoChirp { ratio: if ratio.is_finite() { ratio } else { 0.0 }, need: MIN_PEAK_RATIO });
     }
-    let thr = (MIN_PEAK_RATIO as f32 * median).max(0.05 * global);
+    let thr = (MIN_PEAK_RATIO as f32 * median).max(0.01 * global);
     let mut cands: Vec<usize> = (0..n_chunks).filter(|&i| chunk_max[i] >= thr).collect();
     cands.sort_by(|&a, &b| chunk_max[b].total_cmp(&chunk_max[a]));
     let window = ((0.9 * m as f64) as usize).max(1);

@@ -132,15 +132,17 @@ fn median_of(v: &[f64]) -> f64 {
 /// The model is first widened by a running maximum over ±`MODEL_SPREAD`
 /// samples, so a fractional-sample offset between the model and the data
 /// cannot slip a sidelobe through a ripple null.
-fn above_direct(v: &[f64], model: &[f64], scale: f64, ratio: f64) -> Vec<f64> {
+/// Only `v[lo..hi]` is examined; the rest of the output is 0.
+fn above_direct(v: &[f64], model: &[f64], scale: f64, ratio: f64, lo: usize, hi: usize) -> Vec<f64> {
     let at = |i: usize| model.get(i).copied().unwrap_or(0.0);
-    v.iter()
-        .enumerate()
-        .map(|(i, &x)| {
-            let m = (i.saturating_sub(MODEL_SPREAD)..=i + MODEL_SPREAD).map(at).fold(0.0, f64::max);
-            if x >= ratio * scale * m { x } else { 0.0 }
-        })
-        .collect()
+    let mut out = vec![0.0; v.len()];
+    for i in lo..hi.min(v.len()) {
+        let m = (i.saturating_sub(MODEL_SPREAD)..=i + MODEL_SPREAD).map(at).fold(0.0, f64::max);
+        if v[i] >= ratio * scale * m {
+            out[i] = v[i];
+        }
+    }
+    out
 }
 
 const MODEL_SPREAD: usize = 3;
@@ -153,6 +155,9 @@ pub struct Ranger {
     /// Direct-only responses of the template, keyed by method and layout.
     models: HashMap<(Method, usize, usize), Vec<f64>>,
 }
+
+/// Frames per chirp in the gap method (evenly spread; the median is taken).
+pub const GAP_FRAMES_PER_CHIRP: usize = 24;
 
 /// How far above the direct path's own response a reflection must stand.
 const DIRECT_MARGIN: f64 = 3.0;
@@ -193,7 +198,7 @@ impl Ranger {
         if t1 <= t0 || onset + tpl.len() > x.len() {
             return None;
         }
-        let n_frames = (((t1 - t0) / frame_s).floor() as usize + 1).min(48);
+        let n_frames = (((t1 - t0) / frame_s).floor() as usize + 1).min(GAP_FRAMES_PER_CHIRP);
         let mut gaps = Vec::with_capacity(n_frames);
         let mut levels = Vec::with_capacity(n_frames);
         for k in 0..n_frames {
@@ -238,22 +243,29 @@ impl Ranger {
         let df_max = rate * lim.max_delta_d_m / a;
         let dir = tpl.direction();
         let seg = x.get(start..start + frame)?;
-        let spec = sg.smooth(&magnitude_spectrum(&mut self.cache, seg, nfft));
-        let model = match self.models.get(&(Method::Gap, off, frame)) {
-            Some(m) => m.clone(),
-            None => {
-                let tseg = tpl.real.get(off..off + frame)?;
-                let m = sg.smooth(&magnitude_spectrum(&mut self.cache, tseg, nfft));
-                self.models.insert((Method::Gap, off, frame), m.clone());
-                m
-            }
-        };
+        let raw = magnitude_spectrum(&mut self.cache, seg, nfft);
+        let key = (Method::Gap, off, frame);
+        if !self.models.contains_key(&key) {
+            let tseg = tpl.real.get(off..off + frame)?;
+            let m = sg.smooth(&magnitude_spectrum(&mut self.cache, tseg, nfft));
+            self.models.insert(key, m);
+        }
+        let model = self.models.get(&key)?;
+        // Smooth only the bins the search can touch (the rest is never read).
+        let reach_hz = df_max + guard_hz + 2.0 * bin_hz * (nfft / frame) as f64;
+        let f_mid = tpl.chirp.freq_at((off as f64 + 0.5 * frame as f64) / fs)?;
+        let (s_lo, s_hi) = (
+            (((f_mid - reach_hz) / bin_hz).floor().max(0.0) as usize).min(raw.len()),
+            (((f_mid + reach_hz) / bin_hz).ceil().max(0.0) as usize + 1).min(raw.len()),
+        );
+        let mut spec = vec![0.0; raw.len()];
+        spec[s_lo..s_hi].copy_from_slice(&sg.smooth(&raw[s_lo..s_hi]));
         let tc = (off as f64 + 0.5 * frame as f64) / fs;
         let f_pred = tpl.chirp.freq_at(tc)?;
         let bin = |f: f64| (f / bin_hz).round().max(0.0) as usize;
         let (blo, bhi) = (bin(f_pred - 0.5 * guard_hz), bin(f_pred + 0.5 * guard_hz) + 1);
         let (pd, vd) = peak_in(&spec, blo, bhi)?;
-        let (_, md) = peak_in(&model, blo, bhi)?;
+        let (_, md) = peak_in(model, blo, bhi)?;
         let f_d = pd * bin_hz;
         let (lo_f, hi_f) = if dir > 0.0 { (f_d + guard_hz, f_d + df_max) } else { (f_d - df_max, f_d - guard_hz) };
         let (lo, hi) = (bin(lo_f.max(0.0)), (bin(hi_f.max(0.0)) + 1).min(spec.len()));
@@ -261,7 +273,7 @@ impl Ranger {
             return None;
         }
         let floor = 4.0 * median_of(&spec[lo..hi]);
-        let masked = above_direct(&spec, &model, vd / md.max(1e-30), DIRECT_MARGIN);
+        let masked = above_direct(&spec, model, vd / md.max(1e-30), DIRECT_MARGIN, lo, hi);
         // Scan outward from the direct peak for the nearest strong peak.
         let i = if dir > 0.0 {
             first_strong_peak(&masked, lo, hi, 0.3, floor)
@@ -316,7 +328,7 @@ impl Ranger {
             return None;
         }
         let floor = 6.0 * median_of(&v[lo..]);
-        let masked = above_direct(&v, &model, vd / model[DECHIRP_OFF].max(1e-30), DIRECT_MARGIN);
+        let masked = above_direct(&v, &model, vd / model[DECHIRP_OFF].max(1e-30), DIRECT_MARGIN, lo, v.len());
         let i = first_strong_peak(&masked, lo, v.len(), 0.3, floor)?;
         let (pr, vr) = peak_in(&v, i - 1, i + 2)?;
         Some(((pr - pd) * bin_hz, vr / vd.max(1e-30)))
@@ -384,7 +396,7 @@ impl Ranger {
             return None;
         }
         let floor = 6.0 * median_of(&env[lo..hi]);
-        let masked = above_direct(&env, &shifted, vd / model[0].max(1e-30), DIRECT_MARGIN);
+        let masked = above_direct(&env, &shifted, vd / model[0].max(1e-30), DIRECT_MARGIN, lo, hi);
         let i = first_strong_peak(&masked, lo, hi, 0.3, floor)?;
         let (l, c, r) = (env[i - 1], env[i], env[i + 1]);
         let pr = i as f64 + parabolic_offset(l, c, r);
@@ -438,7 +450,7 @@ impl Ranger {
             return None;
         }
         let floor = 6.0 * median_of(&v[lo..]);
-        let masked = above_direct(&v, &model, vd / model[DECHIRP_OFF].max(1e-30), DIRECT_MARGIN);
+        let masked = above_direct(&v, &model, vd / model[DECHIRP_OFF].max(1e-30), DIRECT_MARGIN, lo, v.len());
         let i = first_strong_peak(&masked, lo, v.len(), 0.3, floor)?;
         let (pr, vr) = peak_in(&v, i - 1, i + 2)?;
         let delta_f_hz = (pr - pd) * bin_hz;

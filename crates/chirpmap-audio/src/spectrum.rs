@@ -9,6 +9,7 @@ use std::sync::Arc;
 pub struct FftCache {
     planner: FftPlanner<f32>,
     plans: HashMap<(usize, bool), Arc<dyn Fft<f32>>>,
+    windows: HashMap<usize, Arc<Vec<f32>>>,
 }
 
 impl std::fmt::Debug for FftCache {
@@ -19,7 +20,7 @@ impl std::fmt::Debug for FftCache {
 
 impl Default for FftCache {
     fn default() -> Self {
-        Self { planner: FftPlanner::new(), plans: HashMap::new() }
+        Self { planner: FftPlanner::new(), plans: HashMap::new(), windows: HashMap::new() }
     }
 }
 
@@ -30,6 +31,10 @@ impl FftCache {
             .entry((n, inverse))
             .or_insert_with(|| if inverse { planner.plan_fft_inverse(n) } else { planner.plan_fft_forward(n) })
             .clone()
+    }
+    /// Hann window of `n` samples, computed once.
+    pub fn hann(&mut self, n: usize) -> Arc<Vec<f32>> {
+        self.windows.entry(n).or_insert_with(|| Arc::new(hann(n))).clone()
     }
     pub fn forward(&mut self, buf: &mut [Complex32]) {
         self.plan(buf.len(), false).process(buf);
@@ -78,9 +83,9 @@ pub fn peak_in(v: &[f64], lo: usize, hi: usize) -> Option<(f64, f64)> {
 /// Magnitude spectrum (bins 0..=n/2) of a real frame, Hann-windowed and
 /// zero-padded to `nfft`.
 pub fn magnitude_spectrum(cache: &mut FftCache, frame: &[f32], nfft: usize) -> Vec<f64> {
-    let w = hann(frame.len());
+    let w = cache.hann(frame.len());
     let mut buf = vec![Complex32::new(0.0, 0.0); nfft.max(frame.len())];
-    for (i, (x, wi)) in frame.iter().zip(&w).enumerate() {
+    for (i, (x, wi)) in frame.iter().zip(w.iter()).enumerate() {
         buf[i].re = x * wi;
     }
     let n = buf.len();

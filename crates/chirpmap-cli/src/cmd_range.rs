@@ -73,7 +73,9 @@ pub fn prepare(wav: &std::path::Path, c: &ChirpArgs) -> Result<Prepared> {
         );
     }
     let fs = f64::from(rec.sample_rate_hz);
-    let mut x = rec.channel(c.channel)?.to_vec();
+    rec.channel(c.channel)?;
+    let (clipped, mut channels) = (rec.clipped_samples, rec.channels);
+    let mut x = channels.swap_remove(c.channel);
     if x.iter().all(|v| *v == 0.0) {
         bail!("{}: channel {} is silent (every sample is zero)", wav.display(), c.channel);
     }
@@ -99,7 +101,7 @@ pub fn prepare(wav: &std::path::Path, c: &ChirpArgs) -> Result<Prepared> {
         lim.max_delta_d_m = m;
     }
     let duration_s = x.len() as f64 / fs;
-    Ok(Prepared { x, tpl, lim, sample_rate_hz: fs, clipped: rec.clipped_samples, duration_s })
+    Ok(Prepared { x, tpl, lim, sample_rate_hz: fs, clipped, duration_s })
 }
 
 #[derive(Debug, Args)]
