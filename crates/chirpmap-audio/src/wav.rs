@@ -76,6 +76,16 @@ fn le_u32(b: &[u8], at: usize) -> Option<u32> {
     Some(u32::from_le_bytes(b.get(at..at + 4)?.try_into().ok()?))
 }
 
+fn sample_format(tag: u16, bits: u16) -> Result<SampleFormat, AudioError> {
+    match (tag, bits) {
+        (1, b @ (16 | 24 | 32)) => Ok(SampleFormat::Int(b)),
+        (3, 32) => Ok(SampleFormat::Float32),
+        (1, b) => Err(AudioError::Unsupported(format!("{b}-bit integer PCM"))),
+        (3, b) => Err(AudioError::Unsupported(format!("{b}-bit float"))),
+        (t, _) => Err(AudioError::Unsupported(format!("format tag {t:#06x} (compressed or unknown)"))),
+    }
+}
+
 /// Decodes a WAV file held in memory. Never panics on any input (fuzzed in
 /// `tests/wav.rs`).
 pub fn read_wav_bytes(bytes: &[u8]) -> Result<Recording, AudioError> {
@@ -119,6 +129,8 @@ pub fn read_wav_bytes(bytes: &[u8]) -> Result<Recording, AudioError> {
                 let Some(f) = fmt else {
                     return Err(AudioError::NotWav("the data chunk comes before any fmt chunk".into()));
                 };
+                // An unsupported encoding is the more useful message, even if also cut short.
+                sample_format(f.0, f.3)?;
                 let avail = bytes.len().saturating_sub(body);
                 // Recorders that stream write 0 or 0xFFFFFFFF before they know the length.
                 let declared = if len == 0 || len == u32::MAX as usize { avail } else { len };
@@ -135,13 +147,7 @@ pub fn read_wav_bytes(bytes: &[u8]) -> Result<Recording, AudioError> {
         pos = body.saturating_add(len).saturating_add(len & 1);
     };
     let ((tag, n_ch, rate, bits), data) = data;
-    let format = match (tag, bits) {
-        (1, b @ (16 | 24 | 32)) => SampleFormat::Int(b),
-        (3, 32) => SampleFormat::Float32,
-        (1, b) => return Err(AudioError::Unsupported(format!("{b}-bit integer PCM"))),
-        (3, b) => return Err(AudioError::Unsupported(format!("{b}-bit float"))),
-        (t, _) => return Err(AudioError::Unsupported(format!("format tag {t:#06x} (compressed or unknown)"))),
-    };
+    let format = sample_format(tag, bits)?;
     let n_ch = usize::from(n_ch);
     if n_ch == 0 {
         return Err(AudioError::NotWav("zero channels".into()));

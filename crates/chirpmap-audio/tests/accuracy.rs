@@ -86,3 +86,38 @@ fn all_methods_recover_wall_distance() {
     }
     assert!(failures.is_empty(), "{failures:#?}");
 }
+
+/// The EXPERIMENTS.md table: `cargo test --release -p chirpmap-audio --test
+/// accuracy -- --ignored --nocapture experiment_table`.
+#[test]
+#[ignore = "prints the EXPERIMENTS.md table (about 10 s)"]
+fn experiment_table() {
+    println!("| T (s) | wall h (m) | true Δd (m) | Δd / gap floor | gap: wall err | matched: wall err | dechirp: wall err | gap: Δd err (m) | matched: Δd err (mm) | dechirp: Δd err (mm) |");
+    println!("|---|---|---|---|---|---|---|---|---|---|");
+    for &chirp_s in &[0.25, 0.5, 1.0] {
+        for &h in &[3.0, 4.0, 5.0, 6.0, 8.0, 10.0] {
+            let truth = delta_d_for_wall(SPEAKER, MIC, NORMAL, h);
+            let got = measure(h, chirp_s, 20);
+            let tpl = ChirpTemplate::new(LinearChirp::new(10_000.0, 200.0, chirp_s).unwrap(), 48_000.0).unwrap();
+            let floor = gap_floor_m(&tpl, 343.0);
+            let werr = |k: usize| {
+                got[k].and_then(|d| wall_distance_m(SPEAKER, MIC, NORMAL, d)).map_or("none".to_string(), |w| {
+                    format!("{:+.2} %", 100.0 * (w - h) / h)
+                })
+            };
+            let derr = |k: usize, scale: f64, prec: usize| {
+                got[k].map_or("none".to_string(), |d| format!("{:+.*}", prec, (d - truth) * scale))
+            };
+            println!(
+                "| {chirp_s} | {h} | {truth:.3} | {:.2} | {} | {} | {} | {} | {} | {} |",
+                truth / floor,
+                werr(0),
+                werr(1),
+                werr(2),
+                derr(0, 1.0, 3),
+                derr(1, 1000.0, 2),
+                derr(2, 1000.0, 2)
+            );
+        }
+    }
+}
