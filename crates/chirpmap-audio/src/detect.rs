@@ -19,11 +19,7 @@ pub fn taper_gain(t_s: f64, duration_s: f64, taper_s: f64) -> f64 {
         return 0.0;
     }
     let edge = t_s.min(duration_s - t_s);
-    if taper_s <= 0.0 || edge >= taper_s {
-        1.0
-    } else {
-        0.5 - 0.5 * (std::f64::consts::PI * edge / taper_s).cos()
-    }
+    if taper_s <= 0.0 || edge >= taper_s { 1.0 } else { 0.5 - 0.5 * (std::f64::consts::PI * edge / taper_s).cos() }
 }
 
 /// The known sweep sampled at the recorder's rate: the real waveform (for
@@ -166,7 +162,7 @@ pub fn detect_chirps(x: &[f32], tpl: &ChirpTemplate, cache: &mut FftCache) -> Re
     let mid = sorted.len() / 2;
     let median = *sorted.select_nth_unstable_by(mid, f32::total_cmp).1;
     let ratio = f64::from(global) / f64::from(median).max(1e-30);
-    if !(ratio >= MIN_PEAK_RATIO) {
+    if ratio.is_nan() || ratio < MIN_PEAK_RATIO {
         return Err(AudioError::NoChirp { ratio: if ratio.is_finite() { ratio } else { 0.0 }, need: MIN_PEAK_RATIO });
     }
     let thr = (MIN_PEAK_RATIO as f32 * median).max(0.01 * global);

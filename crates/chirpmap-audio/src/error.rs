@@ -18,9 +18,7 @@ pub enum AudioError {
     NoSuchChannel { requested: usize, available: usize },
     #[error("the recording is silent (every sample is zero)")]
     Silent,
-    #[error(
-        "the chirp ({chirp_s} s) is longer than the recording ({recording_s} s); check --duration and the file"
-    )]
+    #[error("the chirp ({chirp_s} s) is longer than the recording ({recording_s} s); check --duration and the file")]
     ChirpLongerThanRecording { chirp_s: f64, recording_s: f64 },
     #[error(
         "no chirp found: the best matched-filter peak is only {ratio:.1}× the typical level (need {need:.1}×); \

@@ -25,7 +25,10 @@ pub struct Sos {
 /// `scipy.signal.butter(order, cutoff_hz, 'highpass', fs=fs, output='sos')`.
 pub fn butter_highpass(order: usize, cutoff_hz: f64, sample_rate_hz: f64) -> Result<Sos, AudioError> {
     if order == 0 || order % 2 != 0 || order > 16 {
-        return Err(AudioError::InvalidParam { field: "order", reason: format!("need an even order 2..=16, got {order}") });
+        return Err(AudioError::InvalidParam {
+            field: "order",
+            reason: format!("need an even order 2..=16, got {order}"),
+        });
     }
     if !(cutoff_hz > 0.0 && cutoff_hz < sample_rate_hz / 2.0) {
         return Err(AudioError::InvalidParam {
@@ -105,10 +108,11 @@ fn solve(mut m: Vec<Vec<f64>>, mut r: Vec<f64>) -> Option<Vec<f64>> {
         }
         m.swap(col, piv);
         r.swap(col, piv);
+        let pivot_row = m[col].clone();
         for row in col + 1..n {
-            let f = m[row][col] / m[col][col];
-            for k in col..n {
-                m[row][k] -= f * m[col][k];
+            let f = m[row][col] / pivot_row[col];
+            for (dst, src) in m[row][col..].iter_mut().zip(&pivot_row[col..]) {
+                *dst -= f * src;
             }
             r[row] -= f * r[col];
         }
@@ -151,10 +155,8 @@ impl SavitzkyGolay {
         let mut proj = Vec::with_capacity(window);
         for &xj in &xs {
             let aj: Vec<f64> = (0..p).map(|k| xj.powi(k as i32)).collect();
-            let u = solve(ata.clone(), aj).ok_or(AudioError::InvalidParam {
-                field: "savgol",
-                reason: "singular fit".into(),
-            })?;
+            let u = solve(ata.clone(), aj)
+                .ok_or(AudioError::InvalidParam { field: "savgol", reason: "singular fit".into() })?;
             proj.push(xs.iter().map(|&xi| (0..p).map(|k| u[k] * xi.powi(k as i32)).sum()).collect());
         }
         Ok(Self { window, proj })

@@ -389,7 +389,9 @@ impl Ranger {
         };
         let (pd, vd) = peak_in(&env, 0, 2 * pad + 1)?;
         let shift = pd.round() as usize;
-        let shifted: Vec<f64> = (0..env.len()).map(|i| i.checked_sub(shift).map_or(0.0, |j| model.get(j).copied().unwrap_or(0.0))).collect();
+        let shifted: Vec<f64> = (0..env.len())
+            .map(|i| i.checked_sub(shift).map_or(0.0, |j| model.get(j).copied().unwrap_or(0.0)))
+            .collect();
         let lo = (pd + lim.min_delta_d_m / a * fs).ceil() as usize;
         let hi = ((pd + lim.max_delta_d_m / a * fs).floor() as usize).min(env.len());
         if lo + 3 >= hi {
@@ -515,6 +517,9 @@ pub struct ChirpResult {
     pub estimate: Option<Estimate>,
 }
 
+/// A detected chirp and one estimate per requested method.
+pub type RangedChirp = (crate::detect::Detection, Vec<Option<Estimate>>);
+
 /// Detects every chirp in the high-passed signal `x` and ranges each one
 /// with `method` (the paper's per-chirp processing, §IV.A).
 pub fn range_signal(
@@ -522,7 +527,7 @@ pub fn range_signal(
     tpl: &ChirpTemplate,
     methods: &[Method],
     lim: &RangeLimits,
-) -> Result<Vec<(crate::detect::Detection, Vec<Option<Estimate>>)>, crate::error::AudioError> {
+) -> Result<Vec<RangedChirp>, crate::error::AudioError> {
     let mut ranger = Ranger::new();
     let dets = crate::detect::detect_chirps(x, tpl, &mut ranger.cache)?;
     Ok(dets

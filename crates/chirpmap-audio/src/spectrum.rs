@@ -70,7 +70,7 @@ pub fn peak_in(v: &[f64], lo: usize, hi: usize) -> Option<(f64, f64)> {
     }
     let (i, &m) = v[lo..hi].iter().enumerate().max_by(|a, b| a.1.total_cmp(b.1))?;
     let i = i + lo;
-    if !(m > 0.0) {
+    if m.is_nan() || m <= 0.0 {
         return None;
     }
     if i == 0 || i + 1 >= v.len() {

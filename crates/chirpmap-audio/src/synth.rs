@@ -214,7 +214,9 @@ pub fn synthesize(scene: &Scene, cfg: &SynthConfig) -> Result<Synthesized, Audio
     let t_chirp = chirp.duration_s();
     // Linear sweeps (the paper's) get an inlined phase; others use the trait.
     let linear = match scene.chirp.kind {
-        chirpmap_core::scene::SweepKind::Linear => Some((chirp.f_start_hz(), 0.5 * (chirp.f_end_hz() - chirp.f_start_hz()) / t_chirp)),
+        chirpmap_core::scene::SweepKind::Linear => {
+            Some((chirp.f_start_hz(), 0.5 * (chirp.f_end_hz() - chirp.f_start_hz()) / t_chirp))
+        }
         chirpmap_core::scene::SweepKind::Exponential => None,
     };
     let period = t_chirp + cfg.gap_s;
@@ -247,9 +249,7 @@ pub fn synthesize(scene: &Scene, cfg: &SynthConfig) -> Result<Synthesized, Audio
                 let dte = (te_b - te_a) / len;
                 // Skip blocks in which this path carries no chirp.
                 let (k_a, k_b) = ((te_a / period).floor(), (te_b / period).floor());
-                let silent = te_b < 0.0
-                    || k_a >= cfg.chirps as f64
-                    || (k_a == k_b && te_a - k_a * period > t_chirp);
+                let silent = te_b < 0.0 || k_a >= cfg.chirps as f64 || (k_a == k_b && te_a - k_a * period > t_chirp);
                 if silent {
                     continue;
                 }

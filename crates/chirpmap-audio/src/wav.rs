@@ -34,10 +34,9 @@ impl SampleFormat {
             "24" => Ok(Self::Int(24)),
             "32" => Ok(Self::Int(32)),
             "f32" | "float" | "float32" => Ok(Self::Float32),
-            other => Err(AudioError::InvalidParam {
-                field: "bits",
-                reason: format!("{other:?}: use 16, 24, 32 or f32"),
-            }),
+            other => {
+                Err(AudioError::InvalidParam { field: "bits", reason: format!("{other:?}: use 16, 24, 32 or f32") })
+            }
         }
     }
 }
@@ -112,16 +111,18 @@ pub fn read_wav_bytes(bytes: &[u8]) -> Result<Recording, AudioError> {
         let len = len as usize;
         match id {
             b"fmt " => {
-                let f = bytes.get(body..body + len.min(40)).filter(|f| f.len() >= 16).ok_or_else(|| {
-                    AudioError::Truncated("the fmt chunk is cut short".into())
-                })?;
+                let f = bytes
+                    .get(body..body + len.min(40))
+                    .filter(|f| f.len() >= 16)
+                    .ok_or_else(|| AudioError::Truncated("the fmt chunk is cut short".into()))?;
                 let mut tag = le_u16(f, 0).unwrap_or(0);
                 let channels = le_u16(f, 2).unwrap_or(0);
                 let rate = le_u32(f, 4).unwrap_or(0);
                 let bits = le_u16(f, 14).unwrap_or(0);
                 if tag == 0xFFFE {
                     // Extensible: the subformat GUID starts with the real tag.
-                    tag = le_u16(f, 24).ok_or_else(|| AudioError::Truncated("extensible fmt chunk cut short".into()))?;
+                    tag =
+                        le_u16(f, 24).ok_or_else(|| AudioError::Truncated("extensible fmt chunk cut short".into()))?;
                 }
                 fmt = Some((tag, channels, rate, bits));
             }
@@ -195,14 +196,18 @@ pub fn read_wav_bytes(bytes: &[u8]) -> Result<Recording, AudioError> {
 
 /// Reads a WAV file from disk.
 pub fn read_wav(path: &Path) -> Result<Recording, AudioError> {
-    let bytes =
-        std::fs::read(path).map_err(|source| AudioError::Io { path: path.display().to_string(), source })?;
+    let bytes = std::fs::read(path).map_err(|source| AudioError::Io { path: path.display().to_string(), source })?;
     read_wav_bytes(&bytes)
 }
 
 /// Writes channels (equal length, full scale ±1; values beyond are clipped)
 /// as a WAV file in the given format.
-pub fn write_wav(path: &Path, sample_rate_hz: u32, format: SampleFormat, channels: &[&[f32]]) -> Result<(), AudioError> {
+pub fn write_wav(
+    path: &Path,
+    sample_rate_hz: u32,
+    format: SampleFormat,
+    channels: &[&[f32]],
+) -> Result<(), AudioError> {
     let n_ch = channels.len();
     let frames = channels.first().map_or(0, |c| c.len());
     if n_ch == 0 || n_ch > usize::from(u16::MAX) || channels.iter().any(|c| c.len() != frames) {
@@ -215,10 +220,11 @@ pub fn write_wav(path: &Path, sample_rate_hz: u32, format: SampleFormat, channel
         SampleFormat::Int(b) => (b, hound::SampleFormat::Int),
         SampleFormat::Float32 => (32, hound::SampleFormat::Float),
     };
-    let spec = hound::WavSpec { channels: n_ch as u16, sample_rate: sample_rate_hz, bits_per_sample: bits, sample_format };
+    let spec =
+        hound::WavSpec { channels: n_ch as u16, sample_rate: sample_rate_hz, bits_per_sample: bits, sample_format };
     let werr = |e: hound::Error| AudioError::Write(format!("{}: {e}", path.display()));
-    let file = std::fs::File::create(path)
-        .map_err(|source| AudioError::Io { path: path.display().to_string(), source })?;
+    let file =
+        std::fs::File::create(path).map_err(|source| AudioError::Io { path: path.display().to_string(), source })?;
     let mut w = hound::WavWriter::new(std::io::BufWriter::with_capacity(1 << 20, file), spec).map_err(werr)?;
     match format {
         SampleFormat::Int(16) => {

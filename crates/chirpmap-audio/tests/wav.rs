@@ -5,7 +5,14 @@ use chirpmap_audio::{AudioError, SampleFormat, read_wav, read_wav_bytes, write_w
 use proptest::prelude::*;
 
 /// A canonical WAV header + data, with optional chunks before `data`.
-fn wav_bytes(format_tag: u16, channels: u16, rate: u32, bits: u16, extra: &[(&[u8; 4], &[u8])], data: &[u8]) -> Vec<u8> {
+fn wav_bytes(
+    format_tag: u16,
+    channels: u16,
+    rate: u32,
+    bits: u16,
+    extra: &[(&[u8; 4], &[u8])],
+    data: &[u8],
+) -> Vec<u8> {
     let mut body = Vec::new();
     body.extend_from_slice(b"WAVE");
     body.extend_from_slice(b"fmt ");
@@ -67,7 +74,14 @@ fn round_trips_every_supported_format_and_channel_count() {
 
 #[test]
 fn skips_unknown_chunks_before_data() {
-    let bytes = wav_bytes(1, 1, 48_000, 16, &[(b"LIST", b"INFOISFT\x05\x00\x00\x00abc"), (b"guan", b"x")], &i16_data(&[1000, -1000, 0]));
+    let bytes = wav_bytes(
+        1,
+        1,
+        48_000,
+        16,
+        &[(b"LIST", b"INFOISFT\x05\x00\x00\x00abc"), (b"guan", b"x")],
+        &i16_data(&[1000, -1000, 0]),
+    );
     let r = read_wav_bytes(&bytes).unwrap();
     assert_eq!(r.channels[0].len(), 3);
     assert!((r.channels[0][0] - 1000.0 / 32768.0).abs() < 1e-7);

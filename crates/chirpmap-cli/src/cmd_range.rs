@@ -167,8 +167,8 @@ pub fn run(args: &RangeArgs) -> Result<()> {
     };
     let prep = prepare(&args.wav, &args.chirp)?;
     let methods: Vec<Method> = if args.compare { Method::ALL.to_vec() } else { vec![args.method] };
-    let results = range_signal(&prep.x, &prep.tpl, &methods, &prep.lim)
-        .with_context(|| format!("{}", args.wav.display()))?;
+    let results =
+        range_signal(&prep.x, &prep.tpl, &methods, &prep.lim).with_context(|| format!("{}", args.wav.display()))?;
     let fs = prep.sample_rate_hz;
     let per_method: Vec<Vec<ChirpResult>> = (0..methods.len())
         .map(|k| {
@@ -211,9 +211,11 @@ pub fn run(args: &RangeArgs) -> Result<()> {
     summary["clipped_samples"] = json!(prep.clipped);
     summary["speaker"] = json!(args.speaker);
     summary["mic"] = json!(args.mic);
-    summary["chirp"] = json!({"f_start": args.chirp.f_start, "f_end": args.chirp.f_end, "duration": args.chirp.duration});
+    summary["chirp"] =
+        json!({"f_start": args.chirp.f_start, "f_end": args.chirp.f_end, "duration": args.chirp.duration});
     summary["max_delta_d_m"] = json!(prep.lim.max_delta_d_m);
-    summary["gap_resolution_floor_m"] = json!(chirpmap_audio::ranging::gap_floor_m(&prep.tpl, prep.lim.speed_of_sound_mps));
+    summary["gap_resolution_floor_m"] =
+        json!(chirpmap_audio::ranging::gap_floor_m(&prep.tpl, prep.lim.speed_of_sound_mps));
     if args.compare {
         summary["compare"] = json!(summaries);
     }
@@ -221,7 +223,9 @@ pub fn run(args: &RangeArgs) -> Result<()> {
     let mut out = Staged::new(&args.out)?;
     out.write("chirps.csv", &csv)?;
     if args.compare {
-        let mut c = String::from("method,chirps,estimates,delta_d_median,delta_d_ci95_low,delta_d_ci95_high,wall_distance_median,wall_distance_ci95_low,wall_distance_ci95_high\n");
+        let mut c = String::from(
+            "method,chirps,estimates,delta_d_median,delta_d_ci95_low,delta_d_ci95_high,wall_distance_median,wall_distance_ci95_low,wall_distance_ci95_high\n",
+        );
         for s in &summaries {
             let g = |k: &str| s.get(k).and_then(Value::as_f64);
             let ci = |k: &str, i: usize| s.get(k).and_then(|v| v.get(i)).and_then(Value::as_f64);

@@ -35,8 +35,8 @@ fn write_atomically(path: &Path, f: impl FnOnce(&Path) -> Result<()>) -> Result<
 
 pub fn run(args: &SynthArgs) -> Result<()> {
     let started = Instant::now();
-    let text = std::fs::read_to_string(&args.scene)
-        .with_context(|| format!("cannot read scene {}", args.scene.display()))?;
+    let text =
+        std::fs::read_to_string(&args.scene).with_context(|| format!("cannot read scene {}", args.scene.display()))?;
     let (scene, cfg) = parse_scene_with_synth(&text).map_err(|e| anyhow!("{}: {e}", args.scene.display()))?;
     let syn = synthesize(&scene, &cfg)?;
     let fmt = cfg.format()?;

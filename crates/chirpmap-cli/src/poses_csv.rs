@@ -30,7 +30,8 @@ impl Track {
 pub fn read_poses(path: &Path, listener: u32) -> Result<Track> {
     let text = std::fs::read_to_string(path).with_context(|| format!("cannot read poses {}", path.display()))?;
     let mut lines = text.lines().enumerate();
-    let header: Vec<String> = lines.next().map(|(_, l)| l.split(',').map(|h| h.trim().to_string()).collect()).unwrap_or_default();
+    let header: Vec<String> =
+        lines.next().map(|(_, l)| l.split(',').map(|h| h.trim().to_string()).collect()).unwrap_or_default();
     let col = |name: &str| header.iter().position(|h| h == name);
     let (Some(ct), Some(cx), Some(cy)) = (col("t"), col("x"), col("y")) else {
         bail!("{}: header must name columns t,x,y (optionally listener)", path.display());

@@ -48,14 +48,26 @@ fn synth_then_range_recovers_the_wall_with_every_method() {
     assert!(o.status.success(), "{}", stderr(&o));
     let out = d.join("range");
     let o = run(&[
-        "range", wav.to_str().unwrap(), "--speaker", "0,0", "--mic", "1.5,0.5", "--wall-normal", "0,-1",
-        "--duration", "0.25", "--compare", "--out", out.to_str().unwrap(),
+        "range",
+        wav.to_str().unwrap(),
+        "--speaker",
+        "0,0",
+        "--mic",
+        "1.5,0.5",
+        "--wall-normal",
+        "0,-1",
+        "--duration",
+        "0.25",
+        "--compare",
+        "--out",
+        out.to_str().unwrap(),
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
     for f in ["chirps.csv", "summary.json", "spectrogram.png", "spectrum.png", "compare.csv"] {
         assert!(out.join(f).is_file(), "{f} missing");
     }
-    let s: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let s: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
     assert_eq!(s["method"], "gap");
     assert_eq!(s["chirps"], 6);
     let ci = s["delta_d_ci95"].as_array().unwrap();
@@ -81,13 +93,27 @@ fn map_wav_finds_a_wall_from_a_moving_listener() {
     )
     .unwrap();
     let (wav, poses, out) = (d.join("rec.wav"), d.join("poses.csv"), d.join("map"));
-    let o = run(&["synth", scene.to_str().unwrap(), "--out", wav.to_str().unwrap(), "--poses", poses.to_str().unwrap()]);
+    let o =
+        run(&["synth", scene.to_str().unwrap(), "--out", wav.to_str().unwrap(), "--poses", poses.to_str().unwrap()]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(std::fs::read_to_string(&poses).unwrap().starts_with("t,x,y\n"));
     for method in ["gap", "dechirp"] {
         let o = run(&[
-            "map", "--wav", wav.to_str().unwrap(), "--poses", poses.to_str().unwrap(), "--speaker", "0,0",
-            "--duration", "0.25", "--method", method, "--scene", scene.to_str().unwrap(), "--out", out.to_str().unwrap(),
+            "map",
+            "--wav",
+            wav.to_str().unwrap(),
+            "--poses",
+            poses.to_str().unwrap(),
+            "--speaker",
+            "0,0",
+            "--duration",
+            "0.25",
+            "--method",
+            method,
+            "--scene",
+            scene.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
         ]);
         assert!(o.status.success(), "{method}: {}", stderr(&o));
         let h = std::fs::read_to_string(out.join("highlights.csv")).unwrap();
@@ -146,7 +172,8 @@ fn bad_inputs_give_clear_errors_without_panics() {
     let (ok, e) = range_err(&silent, &[]);
     assert!(!ok && e.contains("silent"), "{e}");
     // No chirp: noise only.
-    let noise: Vec<f32> = (0..96_000u32).map(|i| ((i.wrapping_mul(2_654_435_761) >> 16) as f32 / 65_536.0 - 0.5) * 0.2).collect();
+    let noise: Vec<f32> =
+        (0..96_000u32).map(|i| ((i.wrapping_mul(2_654_435_761) >> 16) as f32 / 65_536.0 - 0.5) * 0.2).collect();
     let pn = d.join("noise.wav");
     write_test_wav(&pn, SampleFormat::Float32, &noise);
     let (ok, e) = range_err(&pn, &[]);
@@ -155,7 +182,16 @@ fn bad_inputs_give_clear_errors_without_panics() {
     let (ok, e) = range_err(&good, &["--duration", "30"]);
     assert!(!ok && e.contains("longer than the recording"), "{e}");
     // Speaker equal to the mic.
-    let o = run(&["range", good.to_str().unwrap(), "--speaker", "1,2", "--mic", "1,2", "--out", d.join("x").to_str().unwrap()]);
+    let o = run(&[
+        "range",
+        good.to_str().unwrap(),
+        "--speaker",
+        "1,2",
+        "--mic",
+        "1,2",
+        "--out",
+        d.join("x").to_str().unwrap(),
+    ]);
     assert!(!o.status.success() && stderr(&o).contains("same point"), "{}", stderr(&o));
     // Missing channel.
     let (ok, e) = range_err(&good, &["--channel", "3"]);
