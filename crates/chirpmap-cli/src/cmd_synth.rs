@@ -23,6 +23,9 @@ pub struct SynthArgs {
 
 /// Writes through a sibling temporary file so a failure leaves no partial output.
 fn write_atomically(path: &Path, f: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    }
     let tmp = path.with_extension(format!("partial-{}", std::process::id()));
     match f(&tmp) {
         Ok(()) => std::fs::rename(&tmp, path).with_context(|| format!("cannot move output to {}", path.display())),
