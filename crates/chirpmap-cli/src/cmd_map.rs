@@ -18,8 +18,28 @@ use std::time::Instant;
 #[derive(Debug, Args)]
 pub struct MapArgs {
     /// Echoes CSV (header: source_x,source_y,listener_x,listener_y,delta_d[,weight,t,listener]).
+    #[arg(long, required_unless_present = "wav", conflicts_with = "wav")]
+    pub echoes: Option<PathBuf>,
+    /// Instead of --echoes: a recording of a moving listener (needs --poses and --speaker).
+    #[arg(long, requires_all = ["poses", "speaker"])]
+    pub wav: Option<PathBuf>,
+    /// Listener poses for --wav: CSV `t,x,y[,listener]` (as written by `chirpmap synth --poses`).
     #[arg(long)]
-    pub echoes: PathBuf,
+    pub poses: Option<PathBuf>,
+    /// Speaker position X,Y (m) for --wav.
+    #[arg(long, value_parser = crate::cmd_range::parse_point, allow_hyphen_values = true)]
+    pub speaker: Option<[f64; 2]>,
+    /// Echo extraction for --wav: gap (the paper's) or dechirp.
+    #[arg(long, default_value = "gap")]
+    pub method: chirpmap_audio::Method,
+    /// Time between measurements for --wav (ms). Paper: 1, 10, 50 ms.
+    #[arg(long, default_value_t = 10.0)]
+    pub period_ms: f64,
+    /// Measurement frame length for --wav (ms). Default: the method's.
+    #[arg(long)]
+    pub frame_ms: Option<f64>,
+    #[command(flatten)]
+    pub chirp: crate::cmd_range::ChirpArgs,
     /// Output directory (created; highlights.csv, map.png, summary.json).
     #[arg(long)]
     pub out: PathBuf,
@@ -56,10 +76,11 @@ pub fn parse_bounds(s: &str) -> Result<[f64; 4], String> {
     Ok(b)
 }
 
-/// Loads a scene file, naming the file in any error.
+/// Loads a scene file, naming the file in any error. A `[synth]` table
+/// (waveform settings for `chirpmap synth`) is accepted and ignored here.
 pub fn load_scene(path: &Path) -> Result<Scene> {
     let text = std::fs::read_to_string(path).with_context(|| format!("cannot read scene {}", path.display()))?;
-    Scene::from_toml_str(&text).map_err(|e| anyhow!("{}: {e}", path.display()))
+    chirpmap_audio::synth::parse_scene_with_synth(&text).map(|(s, _)| s).map_err(|e| anyhow!("{}: {e}", path.display()))
 }
 
 /// Bounds covering every ellipse, focus and extra point, snapped outward to
@@ -141,9 +162,13 @@ pub fn run(args: &MapArgs) -> Result<()> {
         peak_radius: args.peak_radius.unwrap_or(base.peak_radius),
     };
     params.validate()?;
-    let echoes = read_echoes(&args.echoes)?;
+    let (echoes, label) = match (&args.echoes, &args.wav) {
+        (Some(p), _) => (read_echoes(p)?, p.clone()),
+        (None, Some(w)) => (echoes_from_wav(args, w)?, w.clone()),
+        (None, None) => bail!("give --echoes or --wav"),
+    };
     if echoes.is_empty() {
-        bail!("{}: no echoes (the file has a header but no rows)", args.echoes.display());
+        bail!("{}: no echoes", label.display());
     }
     let bounds = match args.bounds {
         Some(b) => b,
@@ -159,6 +184,11 @@ pub fn run(args: &MapArgs) -> Result<()> {
 
     let mut out = Staged::new(&args.out)?;
     out.write("highlights.csv", highlights_csv(&outcome.highlights))?;
+    if args.wav.is_some() {
+        let mut buf = Vec::new();
+        crate::echoes_csv::write_echoes(&mut buf, &echoes)?;
+        out.write("echoes.csv", buf)?;
+    }
     let png = out.path("map.png");
     render_map(
         &png,
@@ -197,4 +227,27 @@ pub fn run(args: &MapArgs) -> Result<()> {
         println!("score_obstacle = {so}, score_highlight = {sh}");
     }
     Ok(())
+}
+
+/// `map --wav`: detect chirps, then one measurement per period at the
+/// listener's pose (issue 5, item 4).
+fn echoes_from_wav(args: &MapArgs, wav: &Path) -> Result<Vec<Echo>> {
+    let poses_path = args.poses.as_ref().context("--wav needs --poses")?;
+    let [sx, sy] = args.speaker.context("--wav needs --speaker")?;
+    let poses = crate::poses_csv::read_poses(poses_path, args.chirp.channel as u32)?;
+    let prep = crate::cmd_range::prepare(wav, &args.chirp)?;
+    let mut cache = chirpmap_audio::spectrum::FftCache::default();
+    let dets =
+        chirpmap_audio::detect_chirps(&prep.x, &prep.tpl, &mut cache).with_context(|| format!("{}", wav.display()))?;
+    let params = chirpmap_audio::frames::FrameParams {
+        method: args.method,
+        period_s: args.period_ms / 1000.0,
+        frame_s: args.frame_ms.map(|m| m / 1000.0),
+        speaker: Point::new(sx, sy),
+        listener_id: args.chirp.channel as u32,
+    };
+    let pose_at = |t: f64| poses.at(t);
+    let echoes = chirpmap_audio::frames::extract_echoes(&prep.x, &prep.tpl, &prep.lim, &dets, &pose_at, &params)?;
+    eprintln!("{}: {} chirp(s), {} echo(es) by {}", wav.display(), dets.len(), echoes.len(), args.method.name());
+    Ok(echoes)
 }

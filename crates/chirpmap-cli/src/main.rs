@@ -1,12 +1,16 @@
 //! `chirpmap`: turn sound into maps (see `chirpmap --help`).
 
 mod cmd_map;
+mod cmd_range;
 mod cmd_simulate;
 mod cmd_sweep;
+mod cmd_synth;
 mod echoes_csv;
 mod output;
 mod plot;
+mod plot_audio;
 mod plot_summary;
+mod poses_csv;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
@@ -36,6 +40,10 @@ enum Command {
     Sweep(cmd_sweep::SweepArgs),
     /// Join the output directories of a sharded sweep.
     Merge(cmd_sweep::MergeArgs),
+    /// Render what the scene's listeners record: chirp train, direct path and specular reflections, noise.
+    Synth(cmd_synth::SynthArgs),
+    /// Range a recording: find every chirp, Δd to the first reflection, wall distance (paper §IV).
+    Range(cmd_range::RangeArgs),
 }
 
 fn main() -> ExitCode {
@@ -45,6 +53,8 @@ fn main() -> ExitCode {
         Command::Map(args) => cmd_map::run(&args),
         Command::Sweep(args) => cmd_sweep::run_sweep_cmd(&args),
         Command::Merge(args) => cmd_sweep::run_merge_cmd(&args),
+        Command::Synth(args) => cmd_synth::run(&args),
+        Command::Range(args) => cmd_range::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,0 +1,185 @@
+//! Chirp detection by matched filter (issue 5): the recorder's clock is not
+//! the speaker's, so every chirp's arrival is found in the recording itself,
+//! by correlating with the known sweep.
+
+use crate::error::AudioError;
+use crate::spectrum::FftCache;
+use chirpmap_core::{LinearChirp, Sweep};
+use rustfft::num_complex::Complex32;
+use std::collections::BTreeSet;
+
+/// Length (s) of the raised-cosine fade at each end of a rendered chirp.
+/// Ours (the paper is silent): 5 ms removes the clicks of a hard start
+/// without changing the sweep.
+pub const DEFAULT_TAPER_S: f64 = 0.005;
+
+/// Raised-cosine fade-in/out gain at `t_s` within a sweep of `duration_s`.
+pub fn taper_gain(t_s: f64, duration_s: f64, taper_s: f64) -> f64 {
+    if !(0.0..=duration_s).contains(&t_s) {
+        return 0.0;
+    }
+    let edge = t_s.min(duration_s - t_s);
+    if taper_s <= 0.0 || edge >= taper_s { 1.0 } else { 0.5 - 0.5 * (std::f64::consts::PI * edge / taper_s).cos() }
+}
+
+/// The known sweep sampled at the recorder's rate: the real waveform (for
+/// the matched filter) and the complex conjugate phasor (for dechirping).
+#[derive(Debug, Clone)]
+pub struct ChirpTemplate {
+    pub chirp: LinearChirp,
+    pub sample_rate_hz: f64,
+    /// `taper · sin(2π φ(t))`, t = n / fs.
+    pub real: Vec<f32>,
+    /// `exp(-i 2π φ(t))`, for mixing the recording down to beat frequencies.
+    pub mix: Vec<Complex32>,
+}
+
+impl ChirpTemplate {
+    pub fn new(chirp: LinearChirp, sample_rate_hz: f64) -> Result<Self, AudioError> {
+        if chirp.f_start_hz().max(chirp.f_end_hz()) >= sample_rate_hz / 2.0 {
+            return Err(AudioError::InvalidParam {
+                field: "chirp",
+                reason: format!(
+                    "the sweep reaches {} Hz, at or above the Nyquist frequency {} Hz of this recording",
+                    chirp.f_start_hz().max(chirp.f_end_hz()),
+                    sample_rate_hz / 2.0
+                ),
+            });
+        }
+        let n = (chirp.duration_s() * sample_rate_hz).round() as usize;
+        let (mut real, mut mix) = (Vec::with_capacity(n), Vec::with_capacity(n));
+        for i in 0..n {
+            let t = i as f64 / sample_rate_hz;
+            let ph = chirp.phase_cycles(t);
+            let ang = std::f64::consts::TAU * (ph - ph.floor());
+            real.push((taper_gain(t, chirp.duration_s(), DEFAULT_TAPER_S) * ang.sin()) as f32);
+            mix.push(Complex32::new(ang.cos() as f32, -ang.sin() as f32));
+        }
+        Ok(Self { chirp, sample_rate_hz, real, mix })
+    }
+
+    pub fn len(&self) -> usize {
+        self.real.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.real.is_empty()
+    }
+    /// |df/dt| (Hz/s).
+    pub fn rate_abs(&self) -> f64 {
+        self.chirp.rate_hz_per_s().abs()
+    }
+    /// +1 for a down-chirp (reflections heard higher), −1 for an up-chirp.
+    pub fn direction(&self) -> f64 {
+        if self.chirp.f_start_hz() > self.chirp.f_end_hz() { 1.0 } else { -1.0 }
+    }
+    /// Conjugate spectrum of the zero-padded real template, for correlation.
+    pub fn conj_spectrum(&self, cache: &mut FftCache, nfft: usize) -> Vec<Complex32> {
+        let mut h = vec![Complex32::new(0.0, 0.0); nfft];
+        for (d, s) in h.iter_mut().zip(&self.real) {
+            d.re = *s;
+        }
+        cache.forward(&mut h);
+        h.iter().map(|c| c.conj()).collect()
+    }
+}
+
+/// One detected chirp: the sample at which its direct arrival begins.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Detection {
+    pub onset_sample: usize,
+    /// Matched-filter peak relative to the recording's typical level.
+    pub strength: f64,
+}
+
+/// Lags per stored maximum: the full correlation of an hour (173 M lags) is
+/// never held, only the maximum of each chunk and its lag.
+const CHUNK: usize = 16;
+
+/// Peak-to-typical ratio below which a recording is said to hold no chirp.
+pub const MIN_PEAK_RATIO: f64 = 12.0;
+
+/// Finds every chirp in `x` (high-passed). A chirp is a matched-filter peak
+/// that is the largest within ±0.9 T (chirps do not overlap), at least
+/// [`MIN_PEAK_RATIO`] × the median chunk maximum and at least 1 % of the
+/// strongest chirp (a moving listener's level changes with its distance). Only chirps whose full template fits in `x` are returned.
+pub fn detect_chirps(x: &[f32], tpl: &ChirpTemplate, cache: &mut FftCache) -> Result<Vec<Detection>, AudioError> {
+    let m = tpl.len();
+    if m == 0 || m > x.len() {
+        return Err(AudioError::ChirpLongerThanRecording {
+            chirp_s: tpl.chirp.duration_s(),
+            recording_s: x.len() as f64 / tpl.sample_rate_hz,
+        });
+    }
+    if x.iter().all(|v| *v == 0.0) {
+        return Err(AudioError::Silent);
+    }
+    let nfft = (4 * m).next_power_of_two().max(1 << 14);
+    let step = nfft - m + 1;
+    let h = tpl.conj_spectrum(cache, nfft);
+    let last_lag = x.len() - m; // inclusive
+    let n_lags = last_lag + 1;
+    let n_chunks = n_lags.div_ceil(CHUNK);
+    let mut chunk_max = vec![0.0f32; n_chunks];
+    let mut chunk_arg = vec![0u32; n_chunks];
+    let fwd = cache.plan(nfft, false);
+    let inv = cache.plan(nfft, true);
+    let mut buf = vec![Complex32::new(0.0, 0.0); nfft];
+    let mut scratch = vec![Complex32::new(0.0, 0.0); fwd.get_inplace_scratch_len().max(inv.get_inplace_scratch_len())];
+    // Two real blocks share one complex FFT: the template is real, so the
+    // correlation of (x1 + i·x2) is c1 + i·c2.
+    let mut s = 0usize;
+    while s < n_lags {
+        let s2 = s + step;
+        for (k, b) in buf.iter_mut().enumerate() {
+            let re = x.get(s + k).copied().unwrap_or(0.0);
+            let im = if s2 < n_lags { x.get(s2 + k).copied().unwrap_or(0.0) } else { 0.0 };
+            *b = Complex32::new(re, im);
+        }
+        fwd.process_with_scratch(&mut buf, &mut scratch);
+        for (b, hh) in buf.iter_mut().zip(&h) {
+            *b *= hh;
+        }
+        inv.process_with_scratch(&mut buf, &mut scratch);
+        for (start, part) in [(s, 0usize), (s2, 1usize)] {
+            if start >= n_lags {
+                continue;
+            }
+            let end = (start + step).min(n_lags);
+            for lag in start..end {
+                let c = buf[lag - start];
+                let v = if part == 0 { c.re } else { c.im }.abs();
+                let ci = lag / CHUNK;
+                if v > chunk_max[ci] {
+                    chunk_max[ci] = v;
+                    chunk_arg[ci] = (lag % CHUNK) as u32;
+                }
+            }
+        }
+        s += 2 * step;
+    }
+    let global = chunk_max.iter().copied().fold(0.0f32, f32::max);
+    let mut sorted = chunk_max.clone();
+    let mid = sorted.len() / 2;
+    let median = *sorted.select_nth_unstable_by(mid, f32::total_cmp).1;
+    let ratio = f64::from(global) / f64::from(median).max(1e-30);
+    if ratio.is_nan() || ratio < MIN_PEAK_RATIO {
+        return Err(AudioError::NoChirp { ratio: if ratio.is_finite() { ratio } else { 0.0 }, need: MIN_PEAK_RATIO });
+    }
+    let thr = (MIN_PEAK_RATIO as f32 * median).max(0.01 * global);
+    let mut cands: Vec<usize> = (0..n_chunks).filter(|&i| chunk_max[i] >= thr).collect();
+    cands.sort_by(|&a, &b| chunk_max[b].total_cmp(&chunk_max[a]));
+    let window = ((0.9 * m as f64) as usize).max(1);
+    let mut accepted: BTreeSet<usize> = BTreeSet::new();
+    let mut out = Vec::new();
+    for ci in cands {
+        let lag = ci * CHUNK + chunk_arg[ci] as usize;
+        let lo = lag.saturating_sub(window);
+        if accepted.range(lo..=lag + window).next().is_some() {
+            continue;
+        }
+        accepted.insert(lag);
+        out.push(Detection { onset_sample: lag, strength: f64::from(chunk_max[ci]) / f64::from(median).max(1e-30) });
+    }
+    out.sort_by_key(|d| d.onset_sample);
+    Ok(out)
+}

@@ -1,0 +1,21 @@
+//! Audio pipeline of chirpmap (issue 5; paper §IV field experiment): WAV
+//! I/O, the paper's filters, FFT/STFT, chirp detection by matched filter,
+//! three ranging methods (the paper's frequency gap, matched filtering,
+//! dechirping), frame-wise echo extraction for moving listeners, and an
+//! image-source waveform synthesizer. No printing.
+
+pub mod detect;
+pub mod error;
+pub mod filter;
+pub mod frames;
+pub mod ranging;
+pub mod spectrum;
+pub mod stats;
+pub mod synth;
+pub mod wav;
+
+pub use detect::{ChirpTemplate, Detection, detect_chirps};
+pub use error::AudioError;
+pub use ranging::{Estimate, Method, RangeLimits, Ranger, wall_distance_m};
+pub use synth::{SynthConfig, synthesize};
+pub use wav::{Recording, SampleFormat, read_wav, read_wav_bytes, write_wav};

@@ -1,0 +1,540 @@
+//! Per-chirp ranging: the path difference Δd between the direct sound and
+//! the first reflection (paper §II.A Eq. 2–3, §IV), by three methods.
+//!
+//! - [`Method::Gap`] — the paper's: short FFT frames across the chirp, each
+//!   magnitude spectrum Savitzky–Golay-smoothed, the direct peak picked by
+//!   prediction (f at the time since the direct onset), the reflected peak
+//!   beside it (higher for a down-chirp), Δf = gap, Δd = a·Δf·T/B. The
+//!   median over frames is the chirp's estimate. Frames of `sqrt(T/B)`
+//!   balance bin width against the sweep's smear within a frame, which
+//!   gives the resolution floor a·sqrt(T/B) (DESIGN.md, physics notes).
+//! - [`Method::Matched`] — ours: correlate with the known chirp, take the
+//!   envelope (analytic signal), Δt between the direct and the first
+//!   reflection peaks, each refined to a fraction of a sample.
+//! - [`Method::Dechirp`] — ours: multiply the recording by the conjugate
+//!   reference aligned on the direct arrival; the direct becomes a tone near
+//!   0 Hz and a reflection Δt later a tone at |rate|·Δt, measured over the
+//!   whole chirp (resolution 1/T Hz instead of sqrt(B/T)). Taking the
+//!   difference of the two tones cancels any residual misalignment.
+
+use crate::detect::ChirpTemplate;
+use crate::filter::SavitzkyGolay;
+use crate::spectrum::{FftCache, hann, magnitude_spectrum, parabolic_offset, peak_in};
+use chirpmap_core::{Point, Sweep};
+use rustfft::num_complex::Complex32;
+use serde::{Deserialize, Serialize};
+use std::collections::HashMap;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Method {
+    Gap,
+    Matched,
+    Dechirp,
+}
+
+impl Method {
+    pub const ALL: [Method; 3] = [Method::Gap, Method::Matched, Method::Dechirp];
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Gap => "gap",
+            Method::Matched => "matched",
+            Method::Dechirp => "dechirp",
+        }
+    }
+}
+
+impl std::str::FromStr for Method {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "gap" => Ok(Method::Gap),
+            "matched" => Ok(Method::Matched),
+            "dechirp" => Ok(Method::Dechirp),
+            o => Err(format!("unknown method {o:?}: use gap, matched or dechirp")),
+        }
+    }
+}
+
+/// Search limits for the reflection.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RangeLimits {
+    pub speed_of_sound_mps: f64,
+    /// Largest Δd searched (m). Reflections later than this are ignored.
+    pub max_delta_d_m: f64,
+    /// Smallest Δd searched by the matched and dechirp methods (m); the gap
+    /// method uses its resolution floor instead.
+    pub min_delta_d_m: f64,
+}
+
+impl RangeLimits {
+    /// Defaults (ours): Δd up to min(60 m, a·T/2), down to 0.3 m.
+    pub fn for_chirp(duration_s: f64, speed_of_sound_mps: f64) -> Self {
+        Self {
+            speed_of_sound_mps,
+            max_delta_d_m: (0.5 * speed_of_sound_mps * duration_s).min(60.0),
+            min_delta_d_m: 0.3,
+        }
+    }
+}
+
+/// One chirp's estimate.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Estimate {
+    /// Frequency gap between the reflected and the direct sound (Hz); for
+    /// matched filtering the gap equivalent to the measured delay.
+    pub delta_f_hz: f64,
+    pub delta_d_m: f64,
+    /// Reflected-to-direct amplitude ratio.
+    pub relative_level: f64,
+}
+
+/// The gap method's resolution floor a·sqrt(T/B) (m) (DESIGN.md). With
+/// Hann frames of sqrt(T/B) the two peaks are reliably separate only from
+/// about [`GAP_RELIABLE_FACTOR`] × this floor (measured, EXPERIMENTS.md).
+pub fn gap_floor_m(tpl: &ChirpTemplate, speed_of_sound_mps: f64) -> f64 {
+    speed_of_sound_mps / tpl.rate_abs().sqrt()
+}
+
+/// Multiple of [`gap_floor_m`] above which the gap method meets 5 % (measured).
+pub const GAP_RELIABLE_FACTOR: f64 = 2.5;
+
+/// Index of the first local maximum in `v[lo..hi]` at least `frac` × the
+/// largest value there and above `floor`. "First" = the earliest reflection
+/// (issue 5: the first reflection after the direct path).
+fn first_strong_peak(v: &[f64], lo: usize, hi: usize, frac: f64, floor: f64) -> Option<usize> {
+    let hi = hi.min(v.len());
+    if lo + 2 >= hi {
+        return None;
+    }
+    let strongest = v[lo..hi].iter().copied().fold(0.0, f64::max);
+    let level = (frac * strongest).max(floor);
+    if !(strongest >= level && strongest > 0.0) {
+        return None;
+    }
+    (lo.max(1)..hi.min(v.len() - 1)).find(|&i| v[i] >= level && v[i] >= v[i - 1] && v[i] >= v[i + 1])
+}
+
+fn median_of(v: &[f64]) -> f64 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    let mut s = v.to_vec();
+    let mid = s.len() / 2;
+    *s.select_nth_unstable_by(mid, f64::total_cmp).1
+}
+
+/// Keeps `v[i]` only where it is at least `ratio` × the direct path's own
+/// response `model` (scaled so that its value at the direct peak equals the
+/// measured one); elsewhere 0. The direct sound is 10–30 dB louder than a
+/// wall echo, and its sidelobes (matched filter) or smeared skirt (gap)
+/// would otherwise be taken for the nearest reflection.
+/// The model is first widened by a running maximum over ±`MODEL_SPREAD`
+/// samples, so a fractional-sample offset between the model and the data
+/// cannot slip a sidelobe through a ripple null.
+/// Only `v[lo..hi]` is examined; the rest of the output is 0.
+fn above_direct(v: &[f64], model: &[f64], scale: f64, ratio: f64, lo: usize, hi: usize) -> Vec<f64> {
+    let at = |i: usize| model.get(i).copied().unwrap_or(0.0);
+    let mut out = vec![0.0; v.len()];
+    for i in lo..hi.min(v.len()) {
+        let m = (i.saturating_sub(MODEL_SPREAD)..=i + MODEL_SPREAD).map(at).fold(0.0, f64::max);
+        if v[i] >= ratio * scale * m {
+            out[i] = v[i];
+        }
+    }
+    out
+}
+
+const MODEL_SPREAD: usize = 3;
+
+/// Ranging engine with cached FFT plans and direct-path responses.
+#[derive(Debug, Default)]
+pub struct Ranger {
+    pub(crate) cache: FftCache,
+    spectra: HashMap<usize, Vec<Complex32>>,
+    /// Direct-only responses of the template, keyed by method and layout.
+    models: HashMap<(Method, usize, usize), Vec<f64>>,
+}
+
+/// Frames per chirp in the gap method (evenly spread; the median is taken).
+pub const GAP_FRAMES_PER_CHIRP: usize = 24;
+
+/// How far above the direct path's own response a reflection must stand.
+const DIRECT_MARGIN: f64 = 3.0;
+
+impl Ranger {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Estimates Δd for the chirp whose direct arrival starts at sample
+    /// `onset` of `x` (high-passed). `None` when no reflection stands out or
+    /// the chirp does not fit in `x`.
+    pub fn estimate(
+        &mut self,
+        method: Method,
+        x: &[f32],
+        onset: usize,
+        tpl: &ChirpTemplate,
+        lim: &RangeLimits,
+    ) -> Option<Estimate> {
+        match method {
+            Method::Gap => self.gap(x, onset, tpl, lim),
+            Method::Matched => self.matched(x, onset, tpl, lim),
+            Method::Dechirp => self.dechirp(x, onset, tpl, lim),
+        }
+    }
+
+    fn gap(&mut self, x: &[f32], onset: usize, tpl: &ChirpTemplate, lim: &RangeLimits) -> Option<Estimate> {
+        let fs = tpl.sample_rate_hz;
+        let t = tpl.chirp.duration_s();
+        let rate = tpl.rate_abs();
+        let a = lim.speed_of_sound_mps;
+        let frame = Self::gap_frame_len(tpl);
+        let frame_s = frame as f64 / fs;
+        // Frames start once every reflection up to max Δd has arrived.
+        let t0 = lim.max_delta_d_m / a;
+        let t1 = t - frame_s;
+        if t1 <= t0 || onset + tpl.len() > x.len() {
+            return None;
+        }
+        let n_frames = (((t1 - t0) / frame_s).floor() as usize + 1).min(GAP_FRAMES_PER_CHIRP);
+        let mut gaps = Vec::with_capacity(n_frames);
+        let mut levels = Vec::with_capacity(n_frames);
+        for k in 0..n_frames {
+            let ts = if n_frames == 1 { t0 } else { t0 + (t1 - t0) * k as f64 / (n_frames - 1) as f64 };
+            let off = (ts * fs).round() as usize;
+            if let Some((g, l)) = self.gap_frame(x, onset + off, off, frame, tpl, lim) {
+                gaps.push(g);
+                levels.push(l);
+            }
+        }
+        if gaps.is_empty() {
+            return None;
+        }
+        let delta_f_hz = median_of(&gaps);
+        Some(Estimate { delta_f_hz, delta_d_m: a * delta_f_hz / rate, relative_level: median_of(&levels) })
+    }
+
+    /// Gap frame size for a template: sqrt(T/B) (see the module docs).
+    pub fn gap_frame_len(tpl: &ChirpTemplate) -> usize {
+        ((tpl.sample_rate_hz / tpl.rate_abs().sqrt()).round() as usize).max(32)
+    }
+
+    /// One frame of the gap method: the frame `x[start..start+frame]` holds
+    /// the direct sound emitted `off` samples after the chirp began. Returns
+    /// the frequency gap (Hz) and the reflected/direct level.
+    pub fn gap_frame(
+        &mut self,
+        x: &[f32],
+        start: usize,
+        off: usize,
+        frame: usize,
+        tpl: &ChirpTemplate,
+        lim: &RangeLimits,
+    ) -> Option<(f64, f64)> {
+        let fs = tpl.sample_rate_hz;
+        let rate = tpl.rate_abs();
+        let a = lim.speed_of_sound_mps;
+        let nfft = (frame * 8).next_power_of_two();
+        let bin_hz = fs / nfft as f64;
+        let sg = SavitzkyGolay::new((nfft / frame) | 1, 2).ok()?;
+        let guard_hz = rate.sqrt();
+        let df_max = rate * lim.max_delta_d_m / a;
+        let dir = tpl.direction();
+        let seg = x.get(start..start + frame)?;
+        let raw = magnitude_spectrum(&mut self.cache, seg, nfft);
+        let key = (Method::Gap, off, frame);
+        if !self.models.contains_key(&key) {
+            let tseg = tpl.real.get(off..off + frame)?;
+            let m = sg.smooth(&magnitude_spectrum(&mut self.cache, tseg, nfft));
+            self.models.insert(key, m);
+        }
+        let model = self.models.get(&key)?;
+        // Smooth only the bins the search can touch (the rest is never read).
+        let reach_hz = df_max + guard_hz + 2.0 * bin_hz * (nfft / frame) as f64;
+        let f_mid = tpl.chirp.freq_at((off as f64 + 0.5 * frame as f64) / fs)?;
+        let (s_lo, s_hi) = (
+            (((f_mid - reach_hz) / bin_hz).floor().max(0.0) as usize).min(raw.len()),
+            (((f_mid + reach_hz) / bin_hz).ceil().max(0.0) as usize + 1).min(raw.len()),
+        );
+        let mut spec = vec![0.0; raw.len()];
+        spec[s_lo..s_hi].copy_from_slice(&sg.smooth(&raw[s_lo..s_hi]));
+        let tc = (off as f64 + 0.5 * frame as f64) / fs;
+        let f_pred = tpl.chirp.freq_at(tc)?;
+        let bin = |f: f64| (f / bin_hz).round().max(0.0) as usize;
+        let (blo, bhi) = (bin(f_pred - 0.5 * guard_hz), bin(f_pred + 0.5 * guard_hz) + 1);
+        let (pd, vd) = peak_in(&spec, blo, bhi)?;
+        let (_, md) = peak_in(model, blo, bhi)?;
+        let f_d = pd * bin_hz;
+        let (lo_f, hi_f) = if dir > 0.0 { (f_d + guard_hz, f_d + df_max) } else { (f_d - df_max, f_d - guard_hz) };
+        let (lo, hi) = (bin(lo_f.max(0.0)), (bin(hi_f.max(0.0)) + 1).min(spec.len()));
+        if lo + 3 >= hi {
+            return None;
+        }
+        let floor = 4.0 * median_of(&spec[lo..hi]);
+        let masked = above_direct(&spec, model, vd / md.max(1e-30), DIRECT_MARGIN, lo, hi);
+        // Scan outward from the direct peak for the nearest strong peak.
+        let i = if dir > 0.0 {
+            first_strong_peak(&masked, lo, hi, 0.3, floor)
+        } else {
+            let rev: Vec<f64> = masked[lo..hi].iter().rev().copied().collect();
+            first_strong_peak(&rev, 0, rev.len(), 0.3, floor).map(|i| hi - 1 - i)
+        }?;
+        let (pr, vr) = peak_in(&spec, i.saturating_sub(1), i + 2)?;
+        Some(((pr * bin_hz - f_d).abs(), vr / vd.max(1e-30)))
+    }
+
+    /// One frame of the dechirp method: `x[start..start+frame]` mixed with
+    /// the reference from template offset `off` (aligned on the direct
+    /// sound). Returns the beat-frequency gap (Hz) and the relative level.
+    pub fn dechirp_frame(
+        &mut self,
+        x: &[f32],
+        start: usize,
+        off: usize,
+        frame: usize,
+        tpl: &ChirpTemplate,
+        lim: &RangeLimits,
+    ) -> Option<(f64, f64)> {
+        let fs = tpl.sample_rate_hz;
+        let a = lim.speed_of_sound_mps;
+        let rate = tpl.rate_abs();
+        let nfft = (frame * 4).next_power_of_two();
+        let bin_hz = fs / nfft as f64;
+        let kmax = (((rate * lim.max_delta_d_m / a) / bin_hz).ceil() as usize + DECHIRP_OFF + 2).min(nfft / 2);
+        let w = hann(frame);
+        let mix = tpl.mix.get(off..off + frame)?;
+        let down = tpl.direction() > 0.0;
+        let spectrum_of = |cache: &mut FftCache, seg: &[f32]| -> Vec<f64> {
+            let mut buf = vec![Complex32::new(0.0, 0.0); nfft];
+            for i in 0..frame {
+                buf[i] = mix[i] * (seg[i] * w[i]);
+            }
+            cache.forward(&mut buf);
+            (0..kmax)
+                .map(|j| {
+                    let f = j as isize - DECHIRP_OFF as isize;
+                    let f = if down { f } else { -f };
+                    f64::from(buf[f.rem_euclid(nfft as isize) as usize].norm())
+                })
+                .collect()
+        };
+        let v = spectrum_of(&mut self.cache, x.get(start..start + frame)?);
+        let model = spectrum_of(&mut self.cache, tpl.real.get(off..off + frame)?);
+        let (pd, vd) = peak_in(&v, DECHIRP_OFF - 4, DECHIRP_OFF + 5)?;
+        let lo = ((pd + (rate * lim.min_delta_d_m / a) / bin_hz).ceil() as usize).max(DECHIRP_OFF + 3);
+        if lo + 3 >= v.len() {
+            return None;
+        }
+        let floor = 6.0 * median_of(&v[lo..]);
+        let masked = above_direct(&v, &model, vd / model[DECHIRP_OFF].max(1e-30), DIRECT_MARGIN, lo, v.len());
+        let i = first_strong_peak(&masked, lo, v.len(), 0.3, floor)?;
+        let (pr, vr) = peak_in(&v, i - 1, i + 2)?;
+        Some(((pr - pd) * bin_hz, vr / vd.max(1e-30)))
+    }
+
+    /// Envelope of the correlation of `seg` with the template (analytic
+    /// signal: negative frequencies removed), lags `0..=seg.len() − m`.
+    fn matched_envelope(&mut self, seg: &[f32], tpl: &ChirpTemplate, nfft: usize) -> Vec<f64> {
+        let m = tpl.len();
+        let h = {
+            let cache = &mut self.cache;
+            self.spectra.entry(nfft).or_insert_with(|| tpl.conj_spectrum(cache, nfft)).clone()
+        };
+        let mut buf = vec![Complex32::new(0.0, 0.0); nfft];
+        for (b, v) in buf.iter_mut().zip(seg) {
+            b.re = *v;
+        }
+        self.cache.forward(&mut buf);
+        for (k, (b, hh)) in buf.iter_mut().zip(&h).enumerate() {
+            *b = if k == 0 || k == nfft / 2 {
+                *b * hh
+            } else if k < nfft / 2 {
+                *b * hh * 2.0
+            } else {
+                Complex32::new(0.0, 0.0)
+            };
+        }
+        self.cache.inverse(&mut buf);
+        let n_lags = (seg.len() + 1).saturating_sub(m).min(nfft);
+        buf[..n_lags].iter().map(|c| f64::from(c.norm())).collect()
+    }
+
+    fn matched(&mut self, x: &[f32], onset: usize, tpl: &ChirpTemplate, lim: &RangeLimits) -> Option<Estimate> {
+        let fs = tpl.sample_rate_hz;
+        let a = lim.speed_of_sound_mps;
+        let m = tpl.len();
+        let pad = 64usize;
+        let dmax = (lim.max_delta_d_m / a * fs).ceil() as usize;
+        let start = onset.checked_sub(pad)?;
+        let len = m + dmax + 2 * pad;
+        let seg = x.get(start..(start + len).min(x.len()))?;
+        if seg.len() < m + 2 * pad {
+            return None;
+        }
+        let nfft = len.next_power_of_two();
+        let env = self.matched_envelope(seg, tpl, nfft);
+        let model = match self.models.get(&(Method::Matched, nfft, len)) {
+            Some(v) => v.clone(),
+            None => {
+                // The template alone at lag `pad`, shifted to lag 0.
+                let mut own = vec![0.0f32; len + pad];
+                own[pad..pad + m].copy_from_slice(&tpl.real);
+                let e = self.matched_envelope(&own, tpl, (len + pad).next_power_of_two());
+                let v: Vec<f64> = e[pad..].to_vec();
+                self.models.insert((Method::Matched, nfft, len), v.clone());
+                v
+            }
+        };
+        let (pd, vd) = peak_in(&env, 0, 2 * pad + 1)?;
+        let shift = pd.round() as usize;
+        let shifted: Vec<f64> = (0..env.len())
+            .map(|i| i.checked_sub(shift).map_or(0.0, |j| model.get(j).copied().unwrap_or(0.0)))
+            .collect();
+        let lo = (pd + lim.min_delta_d_m / a * fs).ceil() as usize;
+        let hi = ((pd + lim.max_delta_d_m / a * fs).floor() as usize).min(env.len());
+        if lo + 3 >= hi {
+            return None;
+        }
+        let floor = 6.0 * median_of(&env[lo..hi]);
+        let masked = above_direct(&env, &shifted, vd / model[0].max(1e-30), DIRECT_MARGIN, lo, hi);
+        let i = first_strong_peak(&masked, lo, hi, 0.3, floor)?;
+        let (l, c, r) = (env[i - 1], env[i], env[i + 1]);
+        let pr = i as f64 + parabolic_offset(l, c, r);
+        let dt = (pr - pd) / fs;
+        Some(Estimate { delta_f_hz: dt * tpl.rate_abs(), delta_d_m: a * dt, relative_level: c / vd.max(1e-30) })
+    }
+
+    /// Magnitude of the dechirped spectrum of `seg` (length m), re-indexed so
+    /// that index `DECHIRP_OFF` is 0 Hz and reflections lie at higher indices.
+    fn dechirp_spectrum(&mut self, seg: &[f32], tpl: &ChirpTemplate, kmax: usize) -> Vec<f64> {
+        let m = tpl.len();
+        let nfft = m.next_power_of_two();
+        let w = hann(m);
+        let mut buf = vec![Complex32::new(0.0, 0.0); nfft];
+        for i in 0..m.min(seg.len()) {
+            buf[i] = tpl.mix[i] * (seg[i] * w[i]);
+        }
+        self.cache.forward(&mut buf);
+        let down = tpl.direction() > 0.0;
+        (0..kmax.min(nfft / 2))
+            .map(|j| {
+                let f = j as isize - DECHIRP_OFF as isize;
+                let f = if down { f } else { -f };
+                f64::from(buf[f.rem_euclid(nfft as isize) as usize].norm())
+            })
+            .collect()
+    }
+
+    fn dechirp(&mut self, x: &[f32], onset: usize, tpl: &ChirpTemplate, lim: &RangeLimits) -> Option<Estimate> {
+        let fs = tpl.sample_rate_hz;
+        let a = lim.speed_of_sound_mps;
+        let m = tpl.len();
+        let seg = x.get(onset..onset + m)?;
+        let nfft = m.next_power_of_two();
+        let bin_hz = fs / nfft as f64;
+        let rate = tpl.rate_abs();
+        let kmax = ((rate * lim.max_delta_d_m / a) / bin_hz).ceil() as usize + DECHIRP_OFF + 2;
+        let v = self.dechirp_spectrum(seg, tpl, kmax);
+        let model = match self.models.get(&(Method::Dechirp, m, kmax)) {
+            Some(v) => v.clone(),
+            None => {
+                let own = tpl.real.clone();
+                let v = self.dechirp_spectrum(&own, tpl, kmax);
+                self.models.insert((Method::Dechirp, m, kmax), v.clone());
+                v
+            }
+        };
+        let (pd, vd) = peak_in(&v, DECHIRP_OFF - 4, DECHIRP_OFF + 5)?;
+        let lo = (pd + (rate * lim.min_delta_d_m / a) / bin_hz).ceil() as usize;
+        if lo + 3 >= v.len() {
+            return None;
+        }
+        let floor = 6.0 * median_of(&v[lo..]);
+        let masked = above_direct(&v, &model, vd / model[DECHIRP_OFF].max(1e-30), DIRECT_MARGIN, lo, v.len());
+        let i = first_strong_peak(&masked, lo, v.len(), 0.3, floor)?;
+        let (pr, vr) = peak_in(&v, i - 1, i + 2)?;
+        let delta_f_hz = (pr - pd) * bin_hz;
+        Some(Estimate { delta_f_hz, delta_d_m: a * delta_f_hz / rate, relative_level: vr / vd.max(1e-30) })
+    }
+}
+
+/// Index of 0 Hz in [`Ranger::dechirp_spectrum`]'s output.
+const DECHIRP_OFF: usize = 8;
+
+/// Perpendicular distance from the speaker to a flat wall, from Δd.
+///
+/// The wall is the line `{p : (p − S)·n = h}`, `n` the unit vector from the
+/// speaker toward the wall. The image of S is `S + 2h·n`, and the reflected
+/// path is `|S + 2h·n − M| = D + Δd`; solving the quadratic in h:
+/// `h = (n·v + sqrt((n·v)² + (D+Δd)² − D²)) / 2` with `v = M − S`.
+pub fn wall_distance_m(speaker: Point, mic: Point, wall_normal: Point, delta_d_m: f64) -> Option<f64> {
+    let n = wall_normal.normalized();
+    if !n.is_finite() || !delta_d_m.is_finite() || delta_d_m < 0.0 {
+        return None;
+    }
+    let v = mic - speaker;
+    let d = v.norm();
+    let nv = n.dot(v);
+    let disc = nv * nv + (d + delta_d_m).powi(2) - d * d;
+    (disc >= 0.0).then(|| 0.5 * (nv + disc.sqrt()))
+}
+
+/// Path difference Δd that a wall at perpendicular distance `h` produces
+/// (the inverse of [`wall_distance_m`]).
+pub fn delta_d_for_wall(speaker: Point, mic: Point, wall_normal: Point, h_m: f64) -> f64 {
+    let n = wall_normal.normalized();
+    let image = speaker + n * (2.0 * h_m);
+    image.dist(mic) - speaker.dist(mic)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn wall_distance_inverts_geometry() {
+        let s = Point::new(0.0, 0.0);
+        let m = Point::new(2.0, 1.0);
+        let n = Point::new(0.0, -1.0);
+        for h in [3.0, 5.5, 10.0] {
+            let dd = delta_d_for_wall(s, m, n, h);
+            // Hand check for h = 3: image (0,-6), |(-2,-7)| = 7.2801, D = 2.2361.
+            if h == 3.0 {
+                assert!((dd - (53f64.sqrt() - 5f64.sqrt())).abs() < 1e-12);
+            }
+            assert!((wall_distance_m(s, m, n, dd).unwrap() - h).abs() < 1e-9);
+        }
+    }
+}
+
+/// One detected chirp and its estimate (if a reflection was found).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ChirpResult {
+    pub index: usize,
+    pub onset_s: f64,
+    pub estimate: Option<Estimate>,
+}
+
+/// A detected chirp and one estimate per requested method.
+pub type RangedChirp = (crate::detect::Detection, Vec<Option<Estimate>>);
+
+/// Detects every chirp in the high-passed signal `x` and ranges each one
+/// with `method` (the paper's per-chirp processing, §IV.A).
+pub fn range_signal(
+    x: &[f32],
+    tpl: &ChirpTemplate,
+    methods: &[Method],
+    lim: &RangeLimits,
+) -> Result<Vec<RangedChirp>, crate::error::AudioError> {
+    let mut ranger = Ranger::new();
+    let dets = crate::detect::detect_chirps(x, tpl, &mut ranger.cache)?;
+    Ok(dets
+        .into_iter()
+        .map(|d| {
+            let est = methods.iter().map(|&m| ranger.estimate(m, x, d.onset_sample, tpl, lim)).collect();
+            (d, est)
+        })
+        .collect())
+}
