@@ -188,17 +188,29 @@ pub fn find_peaks(bins: &[(i64, f64)], merge_gap_bins: i64) -> Vec<Peak> {
 /// listener knows D, so the direct sound must be near f(t − D/a). The peak
 /// whose span (widened by the merge gap) contains the prediction wins, the
 /// nearest centre among several; no such peak (shadowed, not yet arrived, or
-/// chirp over) means this measurement yields no echoes.
+/// chirp over) means this measurement yields no echoes. Emission times
+/// within radius/a + one tick outside the chirp predict its first or last
+/// frequency.
 fn direct_peak(
     r: &Resolved,
     peaks: &[Peak],
     pos: Point,
     vel: Point,
-    _radius_m: f64,
+    radius_m: f64,
     t_s: f64,
 ) -> (Option<usize>, Option<f64>) {
     let d_m = pos.dist(r.source);
-    let Some(mut f) = r.sweep.freq_at(t_s - d_m / r.speed_of_sound_mps) else { return (None, None) };
+    // The disc hears emission times t − (D ± radius)/a, and positions are
+    // sampled per tick: a centre emission time just outside the chirp
+    // [0, T] still has its near (or far) edge hearing the chirp's start (or
+    // end), so it is clamped to the chirp within radius/a + one tick.
+    let t_emit = t_s - d_m / r.speed_of_sound_mps;
+    let tol_s = radius_m / r.speed_of_sound_mps + r.tick_s;
+    let t_end = r.sweep.duration_s();
+    if !(-tol_s..=t_end + tol_s).contains(&t_emit) {
+        return (None, None);
+    }
+    let Some(mut f) = r.sweep.freq_at(t_emit.clamp(0.0, t_end)) else { return (None, None) };
     if r.doppler && d_m > 0.0 {
         f *= 1.0 - vel.dot((pos - r.source) * (1.0 / d_m)) / r.speed_of_sound_mps;
     }
