@@ -113,7 +113,8 @@ fn shards_merge_to_the_unsharded_sweep() {
     let mut shards = Vec::new();
     for i in 0..3 {
         let d = tmp.path().join(format!("shard{i}"));
-        let o = chirpmap(&["sweep", &sweep, "--out", d.to_str().unwrap(), "--shard", &format!("{i}/3"), "--no-progress"]);
+        let o =
+            chirpmap(&["sweep", &sweep, "--out", d.to_str().unwrap(), "--shard", &format!("{i}/3"), "--no-progress"]);
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
         shards.push(d.to_str().unwrap().to_string());
     }
@@ -146,12 +147,16 @@ fn bad_sweeps_fail_before_any_work() {
     let o = chirpmap(&["sweep", empty.to_str().unwrap(), "--out", out.to_str().unwrap()]);
     assert!(String::from_utf8_lossy(&o.stderr).contains("empty grid"));
     let badparam = tmp.path().join("bad.toml");
-    std::fs::write(&badparam, std::fs::read_to_string(&sweep).unwrap().replace("random_obstacles.count", "random_obstacles.cnt"))
-        .unwrap();
+    std::fs::write(
+        &badparam,
+        std::fs::read_to_string(&sweep).unwrap().replace("random_obstacles.count", "random_obstacles.cnt"),
+    )
+    .unwrap();
     let o = chirpmap(&["sweep", badparam.to_str().unwrap(), "--out", out.to_str().unwrap()]);
     assert!(String::from_utf8_lossy(&o.stderr).contains("cnt"));
     let badscene = tmp.path().join("badscene.toml");
-    std::fs::write(&badscene, std::fs::read_to_string(&sweep).unwrap().replace("per_tick = 720", "per_tick = 0")).unwrap();
+    std::fs::write(&badscene, std::fs::read_to_string(&sweep).unwrap().replace("per_tick = 720", "per_tick = 0"))
+        .unwrap();
     let o = chirpmap(&["sweep", badscene.to_str().unwrap(), "--out", out.to_str().unwrap()]);
     assert!(String::from_utf8_lossy(&o.stderr).contains("per_tick"), "{}", String::from_utf8_lossy(&o.stderr));
     let o = chirpmap(&["sweep", &sweep, "--out", out.to_str().unwrap(), "--shard", "3/3"]);

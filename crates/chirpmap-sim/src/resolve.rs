@@ -136,9 +136,7 @@ fn segment_distance(a: Point, b: Point, c: Point, d: Point) -> f64 {
 fn shape_meets_capsule(shape: &Shape, c: &Capsule) -> bool {
     match shape {
         Shape::Circle(q) => point_segment_distance(q.center, c.a, c.b) < q.radius_m + c.radius_m,
-        Shape::Polygon(p) => {
-            p.contains(c.a) || p.edges().any(|(u, v)| segment_distance(u, v, c.a, c.b) < c.radius_m)
-        }
+        Shape::Polygon(p) => p.contains(c.a) || p.edges().any(|(u, v)| segment_distance(u, v, c.a, c.b) < c.radius_m),
     }
 }
 
@@ -304,7 +302,7 @@ pub fn resolve(scene: &Scene) -> Result<Resolved, SimError> {
         if !l.heading_deg.is_finite() {
             return Err(scene_err(format!("{field}.heading_deg must be finite, got {}", l.heading_deg)));
         }
-        if !(l.spin_rate.abs() <= MAX_SPIN_RPS) {
+        if !l.spin_rate.is_finite() || l.spin_rate.abs() > MAX_SPIN_RPS {
             return Err(scene_err(format!(
                 "{field}.spin_rate must be within ±{MAX_SPIN_RPS:.4} rad/s (one turn per second), got {}",
                 l.spin_rate

@@ -92,8 +92,8 @@ fn listener_radius_is_bounded() {
 #[test]
 fn explicit_obstacle_on_the_listener_path_is_rejected() {
     // Default listener: from (−3, 10) heading +x at 10 m/s for 0.706 s, to x ≈ 4.1.
-    let mut s = Scene::default();
-    s.obstacles = vec![ObstacleSpec::circle(chirpmap_core::Point::new(3.0, 10.0), 1.0)];
+    let mut s =
+        Scene { obstacles: vec![ObstacleSpec::circle(chirpmap_core::Point::new(3.0, 10.0), 1.0)], ..Scene::default() };
     let e = err_of(&s);
     assert!(e.contains("obstacles[0]") && e.contains("path of listeners[0]"), "{e}");
     // A polygon whose edge the disc (radius 0.5) grazes is on the path too.
