@@ -23,8 +23,8 @@ pub struct SimulateArgs {
     /// Output directory: summary.json, echoes.csv, highlights.csv, scene.toml, map.png.
     #[arg(long)]
     pub out: PathBuf,
-    /// Master seed, overriding the scene's `seed`.
-    #[arg(long)]
+    /// Master seed, overriding the scene's `seed` (0 to 2^63 − 1: scene.toml records it as a TOML integer).
+    #[arg(long, value_parser = clap::value_parser!(u64).range(..=i64::MAX as u64))]
     pub seed: Option<u64>,
     /// Also write spectra.csv, peaks.csv and spectrum.png (one listener spectrum with its peaks).
     #[arg(long)]

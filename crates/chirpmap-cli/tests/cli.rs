@@ -253,6 +253,19 @@ fn simulate_seed_flag_and_spectra() {
 }
 
 #[test]
+fn simulate_seed_above_i64_max_is_refused() {
+    // scene.toml records the seed as a TOML integer (i64): a larger one could
+    // not be written, and the replay would silently run another scene.
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("s");
+    let o = run(&["simulate", "--out", out.to_str().unwrap(), "--seed", "9223372036854775808"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(err.contains("--seed") && err.contains("9223372036854775807"), "{err}");
+    assert!(!out.exists());
+}
+
+#[test]
 fn simulate_bad_scenes_fail_cleanly_without_output() {
     let tmp = tempfile::tempdir().unwrap();
     let cases: Vec<(&str, &str, &str)> = vec![
@@ -272,6 +285,11 @@ fn simulate_bad_scenes_fail_cleanly_without_output() {
             "overlaps",
         ),
         ("listener outside", "[[listeners]]\nstart = [0.0, 60.0]\n", "outside world"),
+        ("listener leaves", "[[listeners]]\nspeed = 100.0\n", "at t = 0.5300 s"),
+        ("huge spin", "[[listeners]]\nspin_rate = 1e300\n", "listeners[0].spin_rate"),
+        ("huge radius", "[[listeners]]\nradius = 15.0\n", "listeners[0].radius"),
+        ("obstacle on path", "[[obstacles]]\ncenter = [3.0, 10.0]\nradius = 1.0\n", "path of listeners[0]"),
+        ("huge per_tick", "[chirp]\nduration = 0.0005\n[particles]\nper_tick = 2000000000\n", "particles.per_tick"),
     ];
     for (name, toml, want) in cases {
         let f = tmp.path().join(format!("{name}.toml"));

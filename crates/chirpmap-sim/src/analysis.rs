@@ -45,38 +45,89 @@ pub struct SimOutput {
     pub echoes: Vec<Echo>,
 }
 
+/// One measurement's spectrum under construction: occupied bins, sorted.
+///
+/// Each bin's loudness is summed in the order particles are added; callers
+/// add them in particle-id order (see [`Spectra`]), so the sums do not
+/// depend on how the particles were found.
+#[derive(Debug, Clone, Default)]
+struct Spectrum {
+    bins: Vec<(i64, f64)>,
+    n_sensed: u32,
+    /// Index of the last bin touched: one arrival fills few bins, so most
+    /// additions land where the previous one did.
+    last: usize,
+}
+
+impl Spectrum {
+    fn add(&mut self, freq_hz: f64, loudness: f64) {
+        let b = (freq_hz / BIN_HZ).floor() as i64;
+        self.n_sensed += 1;
+        if let Some(bin) = self.bins.get_mut(self.last).filter(|bin| bin.0 == b) {
+            bin.1 += loudness;
+            return;
+        }
+        match self.bins.binary_search_by_key(&b, |bin| bin.0) {
+            Ok(i) => {
+                self.bins[i].1 += loudness;
+                self.last = i;
+            }
+            Err(i) => {
+                self.bins.insert(i, (b, loudness));
+                self.last = i;
+            }
+        }
+    }
+}
+
+/// Per-measurement frequency bins, filled as particles are sensed, so a run
+/// never holds its (possibly hundreds of millions of) sensed particles.
+///
+/// Bit-identical spectra whatever the simulator: within each measurement,
+/// particles must be added in increasing particle id. [`analyse`] sorts a
+/// complete list; the fast simulator adds one emission tick at a time (ids
+/// of tick k all precede those of tick k + 1), each tick sorted.
+#[derive(Debug, Clone)]
+pub struct Spectra {
+    spectra: Vec<Spectrum>,
+}
+
+impl Spectra {
+    pub fn new(r: &Resolved) -> Self {
+        Self { spectra: vec![Spectrum::default(); r.measurement_count()] }
+    }
+
+    /// Adds sensed particles; see the ordering rule on [`Spectra`].
+    pub fn add(&mut self, sensed: &[Sensed]) {
+        for s in sensed {
+            self.spectra[s.measurement as usize].add(s.freq_hz, s.loudness);
+        }
+    }
+}
+
 /// Builds spectra, peaks and echoes from sensed particles (in any order).
 ///
 /// Sums run in (measurement, particle id) order, so any two simulators that
 /// sense the same particles produce bit-identical spectra.
 pub fn analyse(r: &Resolved, mut sensed: Vec<Sensed>) -> SimOutput {
     sensed.sort_unstable_by_key(|s| (s.measurement, s.particle));
-    let n = r.measurement_count();
-    let mut measurements = Vec::with_capacity(n);
+    let mut spectra = Spectra::new(r);
+    spectra.add(&sensed);
+    drop(sensed);
+    analyse_spectra(r, spectra)
+}
+
+/// Peaks, direct peak and echoes of every measurement's spectrum.
+pub fn analyse_spectra(r: &Resolved, spectra: Spectra) -> SimOutput {
+    let mut spectra = spectra.spectra.into_iter();
+    let mut measurements = Vec::with_capacity(r.measurement_count());
     let mut echoes = Vec::new();
-    let mut cursor = 0usize;
-    let mut pairs: Vec<(i64, f64)> = Vec::new();
     for l in &r.listeners {
         for (idx, (&tick, &pos)) in l.ticks.iter().zip(&l.positions).enumerate() {
-            let m = (l.first_measurement + idx) as u32;
-            let begin = cursor;
-            while cursor < sensed.len() && sensed[cursor].measurement == m {
-                cursor += 1;
-            }
-            let here = &sensed[begin..cursor];
-            pairs.clear();
-            pairs.extend(here.iter().map(|s| ((s.freq_hz / BIN_HZ).floor() as i64, s.loudness)));
-            pairs.sort_by_key(|p| p.0); // stable: keeps particle order within a bin
-            let mut bins: Vec<(i64, f64)> = Vec::new();
-            for &(b, v) in &pairs {
-                match bins.last_mut() {
-                    Some(last) if last.0 == b => last.1 += v,
-                    _ => bins.push((b, v)),
-                }
-            }
+            let Spectrum { bins, n_sensed, .. } = spectra.next().unwrap_or_default();
             let peaks = find_peaks(&bins, r.merge_gap_bins);
             let t_s = r.time_s(tick);
-            let (direct, predicted) = direct_peak(r, &peaks, pos, l.velocities[idx], t_s);
+            let (direct, predicted) = direct_peak(r, &peaks, pos, l.velocities[idx], l.radius_m, t_s);
             if let Some(d) = direct {
                 let f_direct = peaks[d].f_hz;
                 for (i, p) in peaks.iter().enumerate() {
@@ -102,7 +153,7 @@ pub fn analyse(r: &Resolved, mut sensed: Vec<Sensed>) -> SimOutput {
                 peaks,
                 direct,
                 predicted_direct_hz: predicted,
-                n_sensed: here.len() as u32,
+                n_sensed,
             });
         }
     }
@@ -137,10 +188,29 @@ pub fn find_peaks(bins: &[(i64, f64)], merge_gap_bins: i64) -> Vec<Peak> {
 /// listener knows D, so the direct sound must be near f(t − D/a). The peak
 /// whose span (widened by the merge gap) contains the prediction wins, the
 /// nearest centre among several; no such peak (shadowed, not yet arrived, or
-/// chirp over) means this measurement yields no echoes.
-fn direct_peak(r: &Resolved, peaks: &[Peak], pos: Point, vel: Point, t_s: f64) -> (Option<usize>, Option<f64>) {
+/// chirp over) means this measurement yields no echoes. Emission times
+/// within radius/a + one tick outside the chirp predict its first or last
+/// frequency.
+fn direct_peak(
+    r: &Resolved,
+    peaks: &[Peak],
+    pos: Point,
+    vel: Point,
+    radius_m: f64,
+    t_s: f64,
+) -> (Option<usize>, Option<f64>) {
     let d_m = pos.dist(r.source);
-    let Some(mut f) = r.sweep.freq_at(t_s - d_m / r.speed_of_sound_mps) else { return (None, None) };
+    // The disc hears emission times t − (D ± radius)/a, and positions are
+    // sampled per tick: a centre emission time just outside the chirp
+    // [0, T] still has its near (or far) edge hearing the chirp's start (or
+    // end), so it is clamped to the chirp within radius/a + one tick.
+    let t_emit = t_s - d_m / r.speed_of_sound_mps;
+    let tol_s = radius_m / r.speed_of_sound_mps + r.tick_s;
+    let t_end = r.sweep.duration_s();
+    if !(-tol_s..=t_end + tol_s).contains(&t_emit) {
+        return (None, None);
+    }
+    let Some(mut f) = r.sweep.freq_at(t_emit.clamp(0.0, t_end)) else { return (None, None) };
     if r.doppler && d_m > 0.0 {
         f *= 1.0 - vel.dot((pos - r.source) * (1.0 / d_m)) / r.speed_of_sound_mps;
     }

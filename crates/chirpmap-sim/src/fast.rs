@@ -13,7 +13,7 @@
 //! the world unsensed and are skipped without tracing.
 
 use crate::Sensed;
-use crate::analysis::{SimOutput, analyse};
+use crate::analysis::{SimOutput, Spectra, analyse_spectra};
 use crate::physics::{
     T_MIN_M, apply_bounce, capsule_interval, disc_window, emission_dir, nearest_hit, points_window, world_exit_m,
 };
@@ -23,8 +23,15 @@ use chirpmap_core::{Point, Shape};
 use std::f64::consts::TAU;
 
 /// Runs the fast simulator and extracts spectra, peaks and echoes.
+///
+/// Sensed particles go straight into per-measurement frequency bins, one
+/// emission tick at a time, so memory does not grow with the number of
+/// particles sensed; the spectra are bit-identical to
+/// [`analyse`](crate::analyse)`(r, sense_fast(r))` (see [`Spectra`]).
 pub fn simulate(r: &Resolved) -> SimOutput {
-    analyse(r, sense_fast(r))
+    let mut spectra = Spectra::new(r);
+    sense_by_tick(r, |block| spectra.add(block));
+    analyse_spectra(r, spectra)
 }
 
 /// Angular windows (centre, half-width) that contain every first segment that
@@ -99,14 +106,74 @@ fn culls(r: &Resolved) -> Vec<Vec<Cull>> {
         .collect()
 }
 
-/// Every particle sensed by every listener at every measurement, from traced paths.
+/// Every particle sensed by every listener at every measurement, from traced
+/// paths: the list the oracle tests compare with the stepper's. Built by the
+/// same code as [`simulate`]'s spectra.
 pub fn sense_fast(r: &Resolved) -> Vec<Sensed> {
     let mut out = Vec::new();
+    sense_by_tick(r, |block| out.extend_from_slice(block));
+    out
+}
+
+/// One measurement's direct-sensing range: emission ticks `k_lo..=k_hi`
+/// whose ring (radius σ = a·dt·(m − k) around the source) can touch the
+/// listener's disc at measurement tick m, one tick of slack each side.
+#[derive(Debug, Clone, Copy)]
+struct DirectRange {
+    k_lo: u64,
+    k_hi: u64,
+    listener: usize,
+    idx: usize,
+}
+
+fn direct_ranges(r: &Resolved) -> Vec<DirectRange> {
+    let mut v = Vec::with_capacity(r.measurement_count());
+    if r.n_emit_ticks == 0 {
+        return v;
+    }
+    for (listener, l) in r.listeners.iter().enumerate() {
+        for (idx, &m) in l.ticks.iter().enumerate() {
+            let d_m = (l.positions[idx] - r.source).norm();
+            let lag_lo = (((d_m - l.radius_m) / r.step_m).floor().max(0.0) as u64).saturating_sub(1);
+            let lag_hi = ((d_m + l.radius_m) / r.step_m).ceil() as u64 + 1;
+            if m < lag_lo {
+                continue;
+            }
+            let k_hi = (m - lag_lo).min(r.n_emit_ticks - 1);
+            let k_lo = m.saturating_sub(lag_hi);
+            if k_lo <= k_hi {
+                v.push(DirectRange { k_lo, k_hi, listener, idx });
+            }
+        }
+    }
+    v.sort_by_key(|d| d.k_lo);
+    v
+}
+
+/// Senses every particle, handing `sink` each emission tick's sensed
+/// particles sorted by (measurement, particle), ticks in increasing order.
+fn sense_by_tick(r: &Resolved, mut sink: impl FnMut(&[Sensed])) {
     let windows = windows(r);
     let culls = culls(r);
     let mut ranges = Vec::new();
-    sense_direct(r, &mut ranges, &mut out);
+    let direct = direct_ranges(r);
+    let mut next_direct = 0usize;
+    let mut active: Vec<DirectRange> = Vec::new();
+    let mut block = Vec::new();
     for k in 0..r.n_emit_ticks {
+        block.clear();
+        // First segments: the measurements whose direct range contains k.
+        active.retain(|d| d.k_hi >= k);
+        while next_direct < direct.len() && direct[next_direct].k_lo <= k {
+            if direct[next_direct].k_hi >= k {
+                active.push(direct[next_direct]);
+            }
+            next_direct += 1;
+        }
+        for d in &active {
+            sense_direct(r, d.listener, d.idx, k, &mut ranges, &mut block);
+        }
+        // Reflected segments.
         let offset = r.emit_offset_rad[k as usize];
         match &windows {
             Some(w) => tick_ranges(w, offset, r.per_tick, &mut ranges),
@@ -117,74 +184,63 @@ pub fn sense_fast(r: &Resolved) -> Vec<Sensed> {
         }
         for &(a, b) in &ranges {
             for j in a..=b {
-                trace_particle(r, &culls, k, j, &mut out);
+                trace_particle(r, &culls, k, j, &mut block);
             }
         }
+        block.sort_unstable_by_key(|s| (s.measurement, s.particle));
+        sink(&block);
     }
-    out
 }
 
-/// Senses first segments (straight from the source, not yet reflected) by
-/// inverting the geometry: at measurement tick m, the particles of emission
-/// tick k are on the circle of radius σ = a·dt·(m − k) around the source, and
-/// those inside the listener's disc lie within the angle δ of the listener's
-/// bearing, cos δ = (σ² + D² − r²)/(2σD). Only those few (plus a margin) are
-/// tested, with the same distance test as everywhere else, and kept if their
-/// first segment has not yet ended (obstacle or world edge) at σ.
-fn sense_direct(r: &Resolved, ranges: &mut Vec<(u32, u32)>, out: &mut Vec<Sensed>) {
-    for l in &r.listeners {
-        let r2 = l.radius_m * l.radius_m;
-        for (idx, &m) in l.ticks.iter().enumerate() {
-            let centre = l.positions[idx];
-            let to_l = centre - r.source;
-            let d_m = to_l.norm();
-            let bearing = to_l.y.atan2(to_l.x);
-            // Emission ticks whose ring can touch the disc, one tick of slack.
-            let lag_lo = (((d_m - l.radius_m) / r.step_m).floor().max(0.0) as u64).saturating_sub(1);
-            let lag_hi = ((d_m + l.radius_m) / r.step_m).ceil() as u64 + 1;
-            let k_hi = m.saturating_sub(lag_lo).min(r.n_emit_ticks.saturating_sub(1));
-            let k_lo = m.saturating_sub(lag_hi);
-            if m < lag_lo || r.n_emit_ticks == 0 {
+/// Senses first segments (straight from the source, not yet reflected) of
+/// emission tick `k` at measurement `idx` of listener `li` by inverting the
+/// geometry: at measurement tick m, the particles of tick k are on the
+/// circle of radius σ = a·dt·(m − k) around the source, and those inside the
+/// listener's disc lie within the angle δ of the listener's bearing,
+/// cos δ = (σ² + D² − r²)/(2σD). Only those few (plus a margin) are tested,
+/// with the same distance test as everywhere else, and kept if their first
+/// segment has not yet ended (obstacle or world edge) at σ.
+fn sense_direct(r: &Resolved, li: usize, idx: usize, k: u64, ranges: &mut Vec<(u32, u32)>, out: &mut Vec<Sensed>) {
+    let l = &r.listeners[li];
+    let m = l.ticks[idx];
+    let r2 = l.radius_m * l.radius_m;
+    let centre = l.positions[idx];
+    let to_l = centre - r.source;
+    let d_m = to_l.norm();
+    let bearing = to_l.y.atan2(to_l.x);
+    let sigma = r.step_m * (m - k) as f64;
+    let all = sigma < 1e-12 || d_m < 1e-12 || {
+        let cos_d = (sigma * sigma + d_m * d_m - r2) / (2.0 * sigma * d_m);
+        if cos_d > 1.0 {
+            return;
+        }
+        cos_d <= -1.0 || {
+            tick_ranges(&[(bearing, cos_d.acos())], r.emit_offset_rad[k as usize], r.per_tick, ranges);
+            false
+        }
+    };
+    if all {
+        ranges.clear();
+        ranges.push((0, r.per_tick - 1));
+    }
+    for &(a, b) in ranges.iter() {
+        for j in a..=b {
+            let dir = emission_dir(r.dir_table[j as usize], r.emit_rot[k as usize]);
+            let w = r.source + dir * sigma - centre;
+            let d2 = w.dot(w);
+            if d2 > r2 {
                 continue;
             }
-            for k in k_lo..=k_hi {
-                let sigma = r.step_m * (m - k) as f64;
-                let all = sigma < 1e-12 || d_m < 1e-12 || {
-                    let cos_d = (sigma * sigma + d_m * d_m - r2) / (2.0 * sigma * d_m);
-                    if cos_d > 1.0 {
-                        continue;
-                    }
-                    cos_d <= -1.0 || {
-                        tick_ranges(&[(bearing, cos_d.acos())], r.emit_offset_rad[k as usize], r.per_tick, ranges);
-                        false
-                    }
-                };
-                if all {
-                    ranges.clear();
-                    ranges.push((0, r.per_tick - 1));
-                }
-                for &(a, b) in ranges.iter() {
-                    for j in a..=b {
-                        let dir = emission_dir(r.dir_table[j as usize], r.emit_rot[k as usize]);
-                        let w = r.source + dir * sigma - centre;
-                        let d2 = w.dot(w);
-                        if d2 > r2 {
-                            continue;
-                        }
-                        let exit = world_exit_m(r.source, dir, &r.world);
-                        let end =
-                            nearest_hit(&r.obstacles, r.source, dir, T_MIN_M).map_or(exit, |(h, _)| h.t.min(exit));
-                        if sigma < end {
-                            out.push(Sensed {
-                                measurement: (l.first_measurement + idx) as u32,
-                                particle: k * u64::from(r.per_tick) + u64::from(j),
-                                freq_hz: heard_hz(r, r.emit_freq_hz[k as usize], dir, l.velocities[idx]),
-                                loudness: 1.0,
-                                dist_m: d2.sqrt(),
-                            });
-                        }
-                    }
-                }
+            let exit = world_exit_m(r.source, dir, &r.world);
+            let end = nearest_hit(&r.obstacles, r.source, dir, T_MIN_M).map_or(exit, |(h, _)| h.t.min(exit));
+            if sigma < end {
+                out.push(Sensed {
+                    measurement: (l.first_measurement + idx) as u32,
+                    particle: k * u64::from(r.per_tick) + u64::from(j),
+                    freq_hz: heard_hz(r, r.emit_freq_hz[k as usize], dir, l.velocities[idx]),
+                    loudness: 1.0,
+                    dist_m: d2.sqrt(),
+                });
             }
         }
     }

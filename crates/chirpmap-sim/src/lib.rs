@@ -28,7 +28,7 @@ pub mod resolve;
 pub mod rng;
 pub mod trajectory;
 
-pub use analysis::{Measurement, Peak, SimOutput, analyse};
+pub use analysis::{Measurement, Peak, SimOutput, Spectra, analyse, analyse_spectra};
 pub use error::SimError;
 pub use fast::{sense_fast, simulate};
 pub use resolve::{BIN_HZ, ListenerPlan, Resolved, resolve};

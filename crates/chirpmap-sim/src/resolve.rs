@@ -17,7 +17,22 @@ pub const BIN_HZ: f64 = 10.0;
 /// Random obstacles keep at least this gap (m) from the source.
 pub const SOURCE_CLEARANCE_M: f64 = 1.0;
 const MAX_PARTICLES: u64 = 2_000_000_000;
-const MAX_MEASUREMENTS: usize = 10_000_000;
+/// Particles per tick: the direction table holds one 16-byte entry each
+/// (10⁶ = 16 MB; the paper uses 3600).
+pub const MAX_PER_TICK: u32 = 1_000_000;
+/// Measurements over all listeners together (a measurement index is a `u32`).
+pub const MAX_MEASUREMENTS: usize = 10_000_000;
+/// Largest |spin_rate| (rad/s): one full turn per second (the paper uses π/4).
+pub const MAX_SPIN_RPS: f64 = std::f64::consts::TAU;
+/// Largest total turn |spin_rate|·duration_s (rad) of a listener: its disc's
+/// sweep is covered by one capsule per 0.1 rad, each tested per particle
+/// segment, so this caps the work at 1000 capsules per listener.
+pub const MAX_TURN_RAD: f64 = 100.0;
+/// Largest listener radius, as a fraction of the world's smaller side. The
+/// disc senses every particle inside it, so the work (and the number of
+/// particles one measurement sums) grows with its area; a disc a tenth of
+/// the world wide is already far from the paper's 0.5 m "microphone".
+pub const MAX_RADIUS_FRACTION: f64 = 0.1;
 /// Longest run, in ticks (10⁷ ticks = 10⁴ s at 1 ms): a guard against typos, not a physical limit.
 const MAX_TICKS: f64 = 1e7;
 const PLACEMENT_TRIES: u32 = 10_000;
@@ -106,6 +121,45 @@ fn segments_intersect(a: Point, b: Point, c: Point, d: Point) -> bool {
         || point_segment_distance(d, a, b) == 0.0
 }
 
+/// Distance between segments `a`–`b` and `c`–`d`.
+fn segment_distance(a: Point, b: Point, c: Point, d: Point) -> f64 {
+    if segments_intersect(a, b, c, d) {
+        return 0.0;
+    }
+    point_segment_distance(a, c, d)
+        .min(point_segment_distance(b, c, d))
+        .min(point_segment_distance(c, a, b))
+        .min(point_segment_distance(d, a, b))
+}
+
+/// Whether an obstacle shape comes within a capsule (a listener's disc sweep).
+fn shape_meets_capsule(shape: &Shape, c: &Capsule) -> bool {
+    match shape {
+        Shape::Circle(q) => point_segment_distance(q.center, c.a, c.b) < q.radius_m + c.radius_m,
+        Shape::Polygon(p) => p.contains(c.a) || p.edges().any(|(u, v)| segment_distance(u, v, c.a, c.b) < c.radius_m),
+    }
+}
+
+/// First time (s) in `[0, last_tick·tick_s]` at which the listener's centre
+/// is no longer strictly inside the world, to within a µs; `None` if never.
+/// Checked at every tick (positions between ticks only matter through the
+/// capsules), then refined by bisection between the last tick inside and the
+/// first outside.
+fn leaves_world(t: &Trajectory, world: &[f64; 4], tick_s: f64, last_tick: u64) -> Option<f64> {
+    let out = |k: u64| !inside(world, t.position(k as f64 * tick_s));
+    let k = (1..=last_tick).find(|&k| out(k))?;
+    let (mut lo, mut hi) = ((k - 1) as f64 * tick_s, k as f64 * tick_s);
+    while hi - lo > 1e-6 {
+        let mid = 0.5 * (lo + hi);
+        if inside(world, t.position(mid)) {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    Some(hi)
+}
+
 /// Whether two obstacle shapes share interior points (touching is allowed).
 pub fn shapes_overlap(a: &Shape, b: &Shape) -> bool {
     match (a, b) {
@@ -126,6 +180,7 @@ fn build_sampling(
     s: &Sampling,
     tick_s: f64,
     last_tick: u64,
+    budget: usize,
     rng: &mut impl Rng,
 ) -> Result<Vec<u64>, SimError> {
     let to_ticks = |ms: f64| ((ms * 1e-3 / tick_s).round() as u64).max(1);
@@ -134,7 +189,7 @@ fn build_sampling(
         (Some(p), None) => {
             let step = to_ticks(positive(&format!("{field}.period_ms"), p)?);
             let mut k = step;
-            while k <= last_tick && ticks.len() <= MAX_MEASUREMENTS {
+            while k <= last_tick && ticks.len() <= budget {
                 ticks.push(k);
                 k += step;
             }
@@ -150,7 +205,7 @@ fn build_sampling(
             let mut k = 0u64;
             loop {
                 k += to_ticks(lo + (hi - lo) * rng.random::<f64>());
-                if k > last_tick || ticks.len() > MAX_MEASUREMENTS {
+                if k > last_tick || ticks.len() > budget {
                     break;
                 }
                 ticks.push(k);
@@ -158,10 +213,10 @@ fn build_sampling(
         }
         _ => return Err(scene_err(format!("{field}: give exactly one of `period_ms` or `random_ms`"))),
     }
-    if ticks.len() > MAX_MEASUREMENTS {
+    if ticks.len() > budget {
         return Err(scene_err(format!(
-            "{field}: {} measurements is more than the cap of {MAX_MEASUREMENTS}",
-            ticks.len()
+            "{field}: more than {budget} measurements, which would exceed the cap of {MAX_MEASUREMENTS} \
+             measurements over all listeners; raise period_ms or lower duration_s"
         )));
     }
     Ok(ticks)
@@ -171,6 +226,14 @@ fn build_sampling(
 ///
 /// Errors name the offending field; nothing here panics on user data.
 pub fn resolve(scene: &Scene) -> Result<Resolved, SimError> {
+    for (name, v) in [("seed", scene.seed), ("run_index", scene.run_index)] {
+        if v > i64::MAX as u64 {
+            return Err(scene_err(format!(
+                "{name} must be at most {} (TOML integers are signed 64-bit, so scene.toml could not record it), got {v}",
+                i64::MAX
+            )));
+        }
+    }
     let seeds = RunSeeds::new(scene.seed, scene.run_index);
     let a = positive("world.speed_of_sound", scene.world.speed_of_sound)?;
     let world = scene.world.bounds;
@@ -181,8 +244,8 @@ pub fn resolve(scene: &Scene) -> Result<Resolved, SimError> {
         return Err(scene_err(format!("source.position {source:?} is not inside world.bounds {world:?}")));
     }
     let p = &scene.particles;
-    if p.per_tick == 0 {
-        return Err(scene_err("particles.per_tick must be > 0"));
+    if p.per_tick == 0 || p.per_tick > MAX_PER_TICK {
+        return Err(scene_err(format!("particles.per_tick must be in 1..={MAX_PER_TICK}, got {}", p.per_tick)));
     }
     let tick_s = positive("particles.tick_ms", p.tick_ms)? * 1e-3;
     if !(p.min_loudness.is_finite() && (0.0..1.0).contains(&p.min_loudness)) {
@@ -205,8 +268,9 @@ pub fn resolve(scene: &Scene) -> Result<Resolved, SimError> {
             )));
         }
     }
-    let n_emit_ticks = ((chirp_s / tick_s) - 1e-9).ceil().max(1.0) as u64;
     let last_tick = (duration_s / tick_s + 1e-9).floor() as u64;
+    // Emission stops with the chirp, or with the run if that is shorter.
+    let n_emit_ticks = (((chirp_s / tick_s) - 1e-9).ceil().max(1.0) as u64).min(last_tick + 1);
     if n_emit_ticks.saturating_mul(u64::from(p.per_tick)) > MAX_PARTICLES {
         return Err(scene_err(format!(
             "{} ticks x {} particles is more than the cap of {MAX_PARTICLES} particles; raise particles.tick_ms or lower per_tick",
@@ -220,6 +284,8 @@ pub fn resolve(scene: &Scene) -> Result<Resolved, SimError> {
     }
     let mut listeners = Vec::with_capacity(scene.listeners.len());
     let mut first = 0usize;
+    let max_radius_m = MAX_RADIUS_FRACTION * (world[2] - world[0]).min(world[3] - world[1]);
+    let run_s = last_tick as f64 * tick_s;
     for (i, l) in scene.listeners.iter().enumerate() {
         let field = format!("listeners[{i}]");
         let start = Point::new(l.start[0], l.start[1]);
@@ -228,14 +294,41 @@ pub fn resolve(scene: &Scene) -> Result<Resolved, SimError> {
         }
         let speed = positive(&format!("{field}.speed"), l.speed)?;
         let radius_m = positive(&format!("{field}.radius"), l.radius)?;
-        if !l.heading_deg.is_finite() || !l.spin_rate.is_finite() {
-            return Err(scene_err(format!("{field}: heading_deg and spin_rate must be finite")));
+        if radius_m > max_radius_m {
+            return Err(scene_err(format!(
+                "{field}.radius must be at most {max_radius_m} m ({MAX_RADIUS_FRACTION} of the world's smaller side), got {radius_m}"
+            )));
+        }
+        if !l.heading_deg.is_finite() {
+            return Err(scene_err(format!("{field}.heading_deg must be finite, got {}", l.heading_deg)));
+        }
+        if !l.spin_rate.is_finite() || l.spin_rate.abs() > MAX_SPIN_RPS {
+            return Err(scene_err(format!(
+                "{field}.spin_rate must be within ±{MAX_SPIN_RPS:.4} rad/s (one turn per second), got {}",
+                l.spin_rate
+            )));
+        }
+        let turn = l.spin_rate.abs() * run_s;
+        if turn > MAX_TURN_RAD {
+            return Err(scene_err(format!(
+                "{field}.spin_rate × duration_s is {turn:.1} rad of turn, more than the cap of {MAX_TURN_RAD} rad; \
+                 lower spin_rate or duration_s"
+            )));
         }
         let trajectory =
             Trajectory { start, heading_rad: l.heading_deg.to_radians(), speed_mps: speed, spin_rate_rps: l.spin_rate };
+        if let Some(t) = leaves_world(&trajectory, &world, tick_s, last_tick) {
+            let at = trajectory.position(t);
+            return Err(scene_err(format!(
+                "{field} leaves world.bounds {world:?} at t = {t:.4} s (near ({:.3}, {:.3})) within the {run_s:.4} s run; \
+                 change its start, heading_deg, speed or spin_rate, or shorten duration_s",
+                at.x, at.y
+            )));
+        }
         let mut rng = stream(seeds.sampling, i as u64);
-        let ticks = build_sampling(&format!("{field}.sampling"), &l.sampling, tick_s, last_tick, &mut rng)?;
-        let capsules = trajectory.capsules(last_tick as f64 * tick_s, radius_m);
+        let budget = MAX_MEASUREMENTS - first;
+        let ticks = build_sampling(&format!("{field}.sampling"), &l.sampling, tick_s, last_tick, budget, &mut rng)?;
+        let capsules = trajectory.capsules(run_s, radius_m);
         let id = u32::try_from(i).map_err(|_| scene_err("too many listeners"))?;
         let n = ticks.len();
         let positions = ticks.iter().map(|&k| trajectory.position(k as f64 * tick_s)).collect();
@@ -270,6 +363,13 @@ pub fn resolve(scene: &Scene) -> Result<Resolved, SimError> {
         for (k, l) in listeners.iter().enumerate() {
             if o.shape.contains(l.trajectory.start) {
                 return Err(scene_err(format!("obstacles[{i}] contains the start of listeners[{k}]")));
+            }
+            if l.capsules.iter().any(|c| shape_meets_capsule(&o.shape, c)) {
+                return Err(scene_err(format!(
+                    "obstacles[{i}] is on the path of listeners[{k}]: its {} m disc would enter the obstacle \
+                     within the {:.4} s run",
+                    l.radius_m, run_s
+                )));
             }
         }
         for (j, q) in obstacles.iter().enumerate().take(i) {
