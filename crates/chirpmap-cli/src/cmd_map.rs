@@ -160,6 +160,7 @@ pub fn run(args: &MapArgs) -> Result<()> {
         keep_top: args.keep_top.unwrap_or(base.keep_top),
         min_of_max: args.min_of_max.unwrap_or(base.min_of_max),
         peak_radius: args.peak_radius.unwrap_or(base.peak_radius),
+        ..base
     };
     params.validate()?;
     let (echoes, label) = match (&args.echoes, &args.wav) {
