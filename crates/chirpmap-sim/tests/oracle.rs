@@ -143,7 +143,14 @@ fn run_shorter_than_the_chirp_is_simulated_not_a_panic() {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 6, ..ProptestConfig::default() })]
+    // A fixed seed keeps CI deterministic: the same 6 scenes every run (plus
+    // the cases saved in oracle.proptest-regressions). To explore, raise
+    // `cases` and change the seed locally (200 cases on several seeds passed).
+    #![proptest_config(ProptestConfig {
+        cases: 6,
+        rng_seed: proptest::test_runner::RngSeed::Fixed(0x6368_6972_706d_6170),
+        ..ProptestConfig::default()
+    })]
 
     /// Random listener motion, radius and sampling, random seeds and obstacles.
     #[test]
@@ -158,22 +165,58 @@ proptest! {
         rough in 0.0..1.0f64,
         doppler in any::<bool>(),
     ) {
-        let mut s = small_scene(seed);
-        s.chirp.duration = 0.08;
-        s.particles.doppler = doppler;
-        s.random_obstacles.roughness = rough;
-        s.random_obstacles.region = [-25.0, -30.0, 25.0, -8.0];
-        s.listeners[0] = ListenerSpec {
-            start: [x, y],
-            heading_deg: heading,
-            spin_rate: spin,
-            radius,
-            sampling: Sampling { period_ms: Some(period), random_ms: None },
-            ..ListenerSpec::default()
-        };
+        let s = random_listener_scene(seed, [x, y], heading, spin, radius, period, rough, doppler);
         // Scenes where the generator cannot place obstacles clear of the listener are skipped.
         if resolve(&s).is_ok() {
             compare(&s);
         }
     }
+}
+
+/// The scene `tracer_matches_stepper_on_random_listeners` builds.
+#[allow(clippy::too_many_arguments)]
+fn random_listener_scene(
+    seed: u64,
+    [x, y]: [f64; 2],
+    heading: f64,
+    spin: f64,
+    radius: f64,
+    period: f64,
+    rough: f64,
+    doppler: bool,
+) -> Scene {
+    let mut s = small_scene(seed);
+    s.chirp.duration = 0.08;
+    s.particles.doppler = doppler;
+    s.random_obstacles.roughness = rough;
+    s.random_obstacles.region = [-25.0, -30.0, 25.0, -8.0];
+    s.listeners[0] = ListenerSpec {
+        start: [x, y],
+        heading_deg: heading,
+        spin_rate: spin,
+        radius,
+        sampling: Sampling { period_ms: Some(period), random_ms: None },
+        ..ListenerSpec::default()
+    };
+    s
+}
+
+/// Proptest-found mismatch: particle 29424 leaves obstacle 1 after a rough
+/// bounce almost tangentially from a bounce point rounded a hair inside the
+/// circle; the tracer took the way out (6e-9 m later, past `T_MIN_M`) for a
+/// second hit on the same circle, the stepper did not, so only the stepper
+/// sensed it (measurement 221, 0.1 m inside the disc). Exits are no longer hits.
+#[test]
+fn regression_seed_829_rough_rebounce() {
+    let s = random_listener_scene(
+        829,
+        [-5.673723871870915, 2.4739653479003483],
+        224.681387119284,
+        0.0,
+        0.2,
+        1.0,
+        0.97287706692307,
+        false,
+    );
+    compare(&s);
 }
