@@ -61,6 +61,26 @@ fn fast_100k(bencher: divan::Bencher) {
         });
 }
 
+/// The bare loop (rasterise + add into a plain Vec) without the mapper, to
+/// see what the mapper's bookkeeping costs.
+#[divan::bench(sample_count = 5, sample_size = 1)]
+fn fast_100k_bare_loop(bencher: divan::Bencher) {
+    let es = echoes(100_000);
+    let cells = cells_of(&es);
+    let s = spec();
+    bencher.counter(ItemsCount::new(cells)).with_inputs(|| vec![0.0f64; s.len()]).bench_local_values(|mut grid| {
+        for e in &es {
+            let w = e.weight;
+            for_each_entered_span(&e.ellipse().expect("valid"), &s, |j, lo, hi| {
+                for v in &mut grid[j * s.nx + lo..=j * s.nx + hi] {
+                    *v += w;
+                }
+            });
+        }
+        grid
+    });
+}
+
 #[divan::bench(sample_count = 20)]
 fn fast_per_ellipse(bencher: divan::Bencher) {
     let es = echoes(16);

@@ -7,10 +7,10 @@ use crate::geometry::Point;
 /// user gets an error instead of an out-of-memory crash.
 pub const DEFAULT_MEMORY_CAP_BYTES: u128 = 2 << 30;
 
-/// Grid-sized f64 buffers alive at the peak of mapping: the tiled
-/// accumulator, its row-major view, the thresholded copy, and the row-max,
-/// two van Herk and window-max buffers of highlight extraction.
-pub const WORKING_COPIES: u128 = 7;
+/// Grid-sized f64 buffers alive at the peak of mapping: the accumulator, the
+/// thresholded copy, and the row-max, two van Herk and window-max buffers of
+/// highlight extraction.
+pub const WORKING_COPIES: u128 = 6;
 
 /// Placement of a grid in the world frame. Cell `(i, j)` covers
 /// `[x_min + i·cell, x_min + (i+1)·cell) × [y_min + j·cell, y_min + (j+1)·cell)`.

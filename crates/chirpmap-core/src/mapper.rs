@@ -78,23 +78,13 @@ pub trait Mapper {
     fn highlights(&self) -> Vec<Highlight>;
 }
 
-/// Side of the square tiles the accumulator is stored in (cells).
-const TILE: usize = 8;
-
 /// Algorithm 1: each ellipse adds its weight once to every cell it enters.
 ///
-/// The accumulator is stored in 8 × 8-cell tiles rather than rows: an
-/// ellipse's steep arcs climb row after row, and with rows 8 KB apart every
-/// step was a new cache line on a new page; inside a tile the next row is the
-/// next cache line. [`Mapper::grid`] returns the row-major view, rebuilt on
-/// demand after new echoes.
+/// (An 8 × 8-tiled layout was tried for cache locality of steep arcs and
+/// measured no faster than rows; see BENCHMARKS.md.)
 #[derive(Debug, Clone)]
 pub struct AccumulationMapper {
-    spec: GridSpec,
-    /// Tiles in row-major tile order, each 8 rows of 8 cells.
-    tiles: Vec<f64>,
-    tiles_x: usize,
-    row_major: std::sync::OnceLock<Grid>,
+    grid: Grid,
     params: MappingParams,
     cells_updated: u64,
 }
@@ -102,16 +92,7 @@ pub struct AccumulationMapper {
 impl AccumulationMapper {
     pub fn new(spec: GridSpec, params: MappingParams) -> Result<Self, CoreError> {
         params.validate()?;
-        let tiles_x = spec.nx.div_ceil(TILE);
-        let tiles_y = spec.ny.div_ceil(TILE);
-        Ok(Self {
-            spec,
-            tiles: vec![0.0; tiles_x * tiles_y * TILE * TILE],
-            tiles_x,
-            row_major: std::sync::OnceLock::new(),
-            params,
-            cells_updated: 0,
-        })
+        Ok(Self { grid: Grid::zeros(spec), params, cells_updated: 0 })
     }
 
     /// Total cell updates so far (for benchmarks and progress reporting).
@@ -121,50 +102,27 @@ impl AccumulationMapper {
 
     fn accumulate(&mut self, echo: &Echo) -> Result<(), CoreError> {
         let e = echo.ellipse()?;
-        self.row_major.take();
-        let (tiles, tiles_x, w) = (&mut self.tiles, self.tiles_x, echo.weight);
+        let spec = self.grid.spec;
+        let (data, w) = (&mut self.grid.data, echo.weight);
         let mut n = 0u64;
         if self.params.ellipse_points > 0 {
             let step = std::f64::consts::TAU / f64::from(self.params.ellipse_points);
             for k in 0..self.params.ellipse_points {
-                if let Some((i, j)) = self.spec.cell_of(e.point_at(f64::from(k) * step)) {
-                    tiles[(j / TILE) * tiles_x * TILE * TILE
-                        + (j % TILE) * TILE
-                        + (i / TILE) * TILE * TILE
-                        + i % TILE] += w;
+                if let Some((i, j)) = spec.cell_of(e.point_at(f64::from(k) * step)) {
+                    data[j * spec.nx + i] += w;
                     n += 1;
                 }
             }
-            self.cells_updated += n;
-            return Ok(());
-        }
-        for_each_entered_span(&e, &self.spec, |j, lo, hi| {
-            let row_base = (j / TILE) * tiles_x * TILE * TILE + (j % TILE) * TILE;
-            let mut i = lo;
-            while i <= hi {
-                let tile_end = (i / TILE * TILE + TILE - 1).min(hi);
-                let base = row_base + (i / TILE) * TILE * TILE;
-                for v in &mut tiles[base + i % TILE..=base + tile_end % TILE] {
+        } else {
+            for_each_entered_span(&e, &spec, |j, lo, hi| {
+                for v in &mut data[j * spec.nx + lo..=j * spec.nx + hi] {
                     *v += w;
                 }
-                i = tile_end + 1;
-            }
-            n += (hi - lo + 1) as u64;
-        });
+                n += (hi - lo + 1) as u64;
+            });
+        }
         self.cells_updated += n;
         Ok(())
-    }
-
-    fn untile(&self) -> Grid {
-        let mut g = Grid::zeros(self.spec);
-        let nx = self.spec.nx;
-        for (j, row) in g.data.chunks_mut(nx).enumerate() {
-            let row_base = (j / TILE) * self.tiles_x * TILE * TILE + (j % TILE) * TILE;
-            for (i, v) in row.iter_mut().enumerate() {
-                *v = self.tiles[row_base + (i / TILE) * TILE * TILE + i % TILE];
-            }
-        }
-        g
     }
 }
 
@@ -173,10 +131,10 @@ impl Mapper for AccumulationMapper {
         self.accumulate(echo)
     }
     fn grid(&self) -> &Grid {
-        self.row_major.get_or_init(|| self.untile())
+        &self.grid
     }
     fn highlights(&self) -> Vec<Highlight> {
-        let mut g = self.grid().clone();
+        let mut g = self.grid.clone();
         threshold(&mut g.data, self.params.keep_top, self.params.min_of_max);
         local_maxima(&g, self.params.peak_radius_cells())
     }
@@ -435,25 +393,5 @@ mod tests {
             }
         });
         assert!(m.grid().data.iter().zip(&exact).all(|(v, x)| *v == 0.0 || *x));
-    }
-
-    #[test]
-    fn tiled_accumulator_matches_row_major_reference() {
-        // Odd grid sizes exercise partial edge tiles.
-        let spec = GridSpec { x_min_m: -3.05, y_min_m: -2.0, cell_m: 0.1, nx: 203, ny: 117 };
-        let mut m = AccumulationMapper::new(spec, MappingParams::default()).unwrap();
-        let mut reference = Grid::zeros(spec);
-        for (k, (sx, lx, dd)) in [(-2.0, 15.0, 3.0), (0.0, 4.0, 0.0), (-5.0, 30.0, 12.0)].into_iter().enumerate() {
-            let e = Echo::new(Point::new(sx, 3.0), Point::new(lx, 5.5), dd, 1.0 + k as f64, 0.0, 0).unwrap();
-            m.add_echo(&e).unwrap();
-            let _ = m.grid(); // the cached view must be invalidated by the next echo
-            for_each_entered_span(&e.ellipse().unwrap(), &spec, |j, lo, hi| {
-                for i in lo..=hi {
-                    reference.data[j * spec.nx + i] += e.weight;
-                }
-            });
-        }
-        assert_eq!(m.grid(), &reference);
-        assert!(reference.data.iter().filter(|v| **v > 0.0).count() > 500);
     }
 }
