@@ -78,6 +78,9 @@ pub trait Mapper {
     fn highlights(&self) -> Vec<Highlight>;
 }
 
+/// Rows ahead to touch while accumulating (see `accumulate`).
+const PREFETCH_ROWS: usize = 6;
+
 /// Algorithm 1: each ellipse adds its weight once to every cell it enters.
 ///
 /// (An 8 × 8-tiled layout was tried for cache locality of steep arcs and
@@ -114,12 +117,19 @@ impl AccumulationMapper {
                 }
             }
         } else {
+            let mut touch = 0.0f64;
             for_each_entered_span(&e, &spec, |j, lo, hi| {
+                // Touch the same column a few rows ahead: a load nobody waits
+                // for, which pulls the line in before the arc gets there.
+                if let Some(v) = data.get((j + PREFETCH_ROWS) * spec.nx + lo) {
+                    touch += *v;
+                }
                 for v in &mut data[j * spec.nx + lo..=j * spec.nx + hi] {
                     *v += w;
                 }
                 n += (hi - lo + 1) as u64;
             });
+            std::hint::black_box(touch);
         }
         self.cells_updated += n;
         Ok(())
@@ -165,24 +175,31 @@ pub fn threshold(data: &mut [f64], keep_top: f64, min_of_max: f64) {
 /// three max operations per element whatever `r` is. `src` is padded with `r`
 /// zeros on both sides (values are non-negative), `out[i]` is the maximum of
 /// `src[i-r ..= i+r]` clipped to the slice.
-fn window_max_1d(src: &[f64], r: usize, out: &mut [f64], g: &mut Vec<f64>, h: &mut Vec<f64>) {
+fn window_max_1d(src: &[f64], r: usize, out: &mut [f64], pad: &mut Vec<f64>, g: &mut Vec<f64>, h: &mut Vec<f64>) {
     let n = src.len();
     let k = 2 * r + 1;
     let m = n + 2 * r;
-    let at = |p: usize| if p >= r && p < r + n { src[p - r] } else { 0.0 };
+    pad.clear();
+    pad.resize(r, 0.0);
+    pad.extend_from_slice(src);
+    pad.resize(m, 0.0);
     g.clear();
-    g.resize(m, 0.0);
+    g.extend_from_slice(pad);
     h.clear();
-    h.resize(m, 0.0);
-    for p in 0..m {
-        g[p] = if p % k == 0 { at(p) } else { g[p - 1].max(at(p)) };
+    h.extend_from_slice(pad);
+    for block in g.chunks_mut(k) {
+        for p in 1..block.len() {
+            block[p] = block[p].max(block[p - 1]);
+        }
     }
-    for p in (0..m).rev() {
-        h[p] = if p % k == k - 1 || p == m - 1 { at(p) } else { h[p + 1].max(at(p)) };
+    for block in h.chunks_mut(k) {
+        for p in (0..block.len() - 1).rev() {
+            block[p] = block[p].max(block[p + 1]);
+        }
     }
-    for (i, o) in out.iter_mut().enumerate() {
+    for ((o, a), b) in out.iter_mut().zip(&h[..n]).zip(&g[2 * r..2 * r + n]) {
         // Padded window [i, i + 2r] spans at most two blocks.
-        *o = h[i].max(g[i + 2 * r]);
+        *o = a.max(*b);
     }
 }
 
@@ -240,9 +257,10 @@ pub fn local_maxima(g: &Grid, r: usize) -> Vec<Highlight> {
     }
     let r = r.min(nx.max(ny));
     let mut row_max = vec![0.0; nx * ny];
-    let (mut gbuf, mut hbuf) = (Vec::new(), Vec::new());
+    let (mut pad, mut gbuf, mut hbuf) = (Vec::new(), Vec::new(), Vec::new());
     for j in 0..ny {
-        window_max_1d(&g.data[j * nx..(j + 1) * nx], r, &mut row_max[j * nx..(j + 1) * nx], &mut gbuf, &mut hbuf);
+        let row = &g.data[j * nx..(j + 1) * nx];
+        window_max_1d(row, r, &mut row_max[j * nx..(j + 1) * nx], &mut pad, &mut gbuf, &mut hbuf);
     }
     let win_max = window_max_rows(&row_max, nx, ny, r);
     drop(row_max);
