@@ -31,6 +31,7 @@ name = "spin_rate"
 path = "listeners.*.spin_rate"
 values = [0.0, {spin}]
 labels = ["0", "pi/4"]
+baseline = "0"
 {SAMPLE_PARAM}"#,
         spin = std::f64::consts::FRAC_PI_4
     )
