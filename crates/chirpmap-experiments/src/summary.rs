@@ -107,23 +107,15 @@ pub fn summary_csv(plan: &Plan, s: &[ConfigSummary]) -> String {
     String::from_utf8(w.into_inner().unwrap_or_default()).unwrap_or_default()
 }
 
-fn pm(m: &MeanCi) -> String {
+/// "mean ± half-width", with an explicit sign for differences.
+fn fmt_ci(m: &MeanCi, signed: bool) -> String {
+    let mean = if signed { format!("{:+.3}", m.mean) } else { format!("{:.3}", m.mean) };
     if !m.mean.is_finite() {
         "–".into()
     } else if m.half_width.is_finite() {
-        format!("{:.3} ± {:.3}", m.mean, m.half_width)
+        format!("{mean} ± {:.3}", m.half_width)
     } else {
-        format!("{:.3}", m.mean)
-    }
-}
-
-fn signed_pm(m: &MeanCi) -> String {
-    if !m.mean.is_finite() {
-        "–".into()
-    } else if m.half_width.is_finite() {
-        format!("{:+.3} ± {:.3}", m.mean, m.half_width)
-    } else {
-        format!("{:+.3}", m.mean)
+        mean
     }
 }
 
@@ -151,10 +143,10 @@ pub fn summary_md(plan: &Plan, s: &[ConfigSummary]) -> String {
     let _ = writeln!(out, "|{}", "---|".repeat(head.len()));
     for c in s {
         let mut r = c.labels.clone();
-        r.extend([c.runs.to_string(), pm(&c.score_obstacle), pm(&c.score_highlight)]);
+        r.extend([c.runs.to_string(), fmt_ci(&c.score_obstacle, false), fmt_ci(&c.score_highlight, false)]);
         if diffs {
-            r.push(c.diff_obstacle.as_ref().map_or_else(|| "(baseline)".into(), signed_pm));
-            r.push(c.diff_highlight.as_ref().map_or_else(|| "(baseline)".into(), signed_pm));
+            r.push(c.diff_obstacle.as_ref().map_or_else(|| "(baseline)".into(), |m| fmt_ci(m, true)));
+            r.push(c.diff_highlight.as_ref().map_or_else(|| "(baseline)".into(), |m| fmt_ci(m, true)));
         }
         let _ = writeln!(out, "| {} |", r.join(" | "));
     }
