@@ -5,6 +5,9 @@
 use anyhow::{Context, Result};
 use std::path::{Path, PathBuf};
 
+/// Lists the files the last run wrote into an output directory.
+const MANIFEST: &str = ".chirpmap-outputs";
+
 #[derive(Debug)]
 pub struct Staged {
     dir: PathBuf,
@@ -38,12 +41,26 @@ impl Staged {
     }
 
     /// Moves every staged file into the output directory.
+    ///
+    /// Files an earlier chirpmap run listed in the directory's manifest but
+    /// this run did not write (say `spectra.csv` from an earlier `--spectra`)
+    /// are removed, so the directory never mixes two runs; files the user put
+    /// there are never touched.
     pub fn commit(mut self) -> Result<PathBuf> {
         for f in &self.files {
             let (from, to) = (self.staging.join(f), self.dir.join(f));
             std::fs::rename(&from, &to)
                 .with_context(|| format!("cannot move {} to {}", from.display(), to.display()))?;
         }
+        let manifest = self.dir.join(MANIFEST);
+        if let Ok(old) = std::fs::read_to_string(&manifest) {
+            for stale in old.lines().filter(|l| !l.is_empty() && !l.contains('/') && !self.files.iter().any(|f| f == l))
+            {
+                std::fs::remove_file(self.dir.join(stale)).ok();
+            }
+        }
+        let list: String = self.files.iter().map(|f| format!("{f}\n")).collect();
+        std::fs::write(&manifest, list).with_context(|| format!("cannot write {}", manifest.display()))?;
         std::fs::remove_dir_all(&self.staging).ok();
         self.committed = true;
         Ok(self.dir.clone())

@@ -110,7 +110,8 @@ fn map_finds_each_of_three_circles_from_exact_echoes() {
     // Nothing staged is left behind.
     let names: Vec<String> =
         std::fs::read_dir(&out).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
-    assert_eq!(names.len(), 3, "{names:?}");
+    assert!(!names.iter().any(|n| n.starts_with(".chirpmap-partial")), "{names:?}");
+    assert_eq!(names.iter().filter(|n| !n.starts_with('.')).count(), 3, "{names:?}");
 }
 
 #[test]
@@ -196,7 +197,7 @@ fn simulate_default_scene_is_reproducible_and_replayable() {
     let mut names: Vec<String> =
         std::fs::read_dir(&a).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
     names.sort();
-    assert_eq!(names, ["echoes.csv", "highlights.csv", "map.png", "scene.toml", "summary.json"]);
+    assert_eq!(names, [".chirpmap-outputs", "echoes.csv", "highlights.csv", "map.png", "scene.toml", "summary.json"]);
     // Same seed: the same summary, bit for bit (timings aside), and the same files.
     let sa = summary_without_timings(&a);
     assert_eq!(sa, summary_without_timings(&b));
@@ -336,4 +337,20 @@ fn map_scene_with_random_obstacles_is_scored_like_simulate() {
     assert_eq!(m["score_obstacle"], s["score_obstacle"], "{m} vs {s}");
     assert_eq!(m["score_highlight"], s["score_highlight"]);
     assert_eq!(m["n_highlights"], s["n_highlights"]);
+}
+
+#[test]
+fn rerun_into_the_same_directory_drops_the_previous_runs_extra_files_only() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("o");
+    let o = run(&["simulate", "--out", out.to_str().unwrap(), "--spectra"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(out.join("spectra.csv").exists());
+    std::fs::write(out.join("notes.txt"), "mine").unwrap();
+    let o = run(&["simulate", "--out", out.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(!out.join("spectra.csv").exists(), "stale output of the earlier run left behind");
+    assert!(!out.join("spectrum.png").exists());
+    assert!(out.join("summary.json").exists() && out.join("map.png").exists());
+    assert_eq!(std::fs::read_to_string(out.join("notes.txt")).unwrap(), "mine", "a user's file was touched");
 }
