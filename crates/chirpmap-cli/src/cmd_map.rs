@@ -217,7 +217,7 @@ pub fn run(args: &MapArgs) -> Result<()> {
     summary["elapsed_s"] = json!(started.elapsed().as_secs_f64());
     out.write("summary.json", serde_json::to_string_pretty(&summary)? + "\n")?;
     let dir = out.commit()?;
-    println!(
+    say!(
         "{} echoes -> {} highlights in {:.3} s; wrote {}",
         echoes.len(),
         outcome.highlights.len(),
@@ -225,7 +225,7 @@ pub fn run(args: &MapArgs) -> Result<()> {
         dir.display()
     );
     if let (Some(so), Some(sh)) = (summary.get("score_obstacle"), summary.get("score_highlight")) {
-        println!("score_obstacle = {so}, score_highlight = {sh}");
+        say!("score_obstacle = {so}, score_highlight = {sh}");
     }
     Ok(())
 }

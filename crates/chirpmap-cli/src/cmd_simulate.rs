@@ -99,7 +99,7 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
     });
     staged.write("summary.json", serde_json::to_string_pretty(&summary)? + "\n")?;
     let dir = staged.commit()?;
-    println!(
+    say!(
         "{} measurements -> {} echoes -> {} highlights in {:.3} s; wrote {}",
         out.measurements.len(),
         out.echoes.len(),
@@ -107,7 +107,7 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
         started.elapsed().as_secs_f64(),
         dir.display()
     );
-    println!("score_obstacle = {}, score_highlight = {}", fmt_score(so, 4), fmt_score(sh, 4));
+    say!("score_obstacle = {}, score_highlight = {}", fmt_score(so, 4), fmt_score(sh, 4));
     Ok(())
 }
 

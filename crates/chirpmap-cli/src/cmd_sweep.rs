@@ -68,7 +68,7 @@ fn finish(dir: &Path, plan: &Plan, summaries: &[chirpmap_experiments::summary::C
     let png = dir.join("summary.png");
     plot_summary(&png, plan, summaries)?;
     let md = std::fs::read_to_string(dir.join("summary.md")).unwrap_or_default();
-    println!("{md}");
+    say!("{md}");
     Ok(())
 }
 

@@ -1,5 +1,14 @@
 //! `chirpmap`: turn sound into maps (see `chirpmap --help`).
 
+/// `println!` that ends quietly when stdout is closed early (e.g. piped into
+/// `head`) instead of panicking; the command's results are in its files.
+macro_rules! say {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stdout(), $($arg)*);
+    }};
+}
+
 mod cmd_map;
 mod cmd_range;
 mod cmd_simulate;
