@@ -38,55 +38,55 @@ pub fn for_each_entered_span(e: &Ellipse, spec: &GridSpec, mut span: impl FnMut(
     // x = k_mid·y ± k_half·sqrt(A − y²).
     let (k_mid, k_half) = if qa > 0.0 { (-qb / (2.0 * qa), e.semi_major_m * e.semi_minor_m / qa) } else { (0.0, 0.0) };
     let qa_c = qa * inv_w * inv_w;
-    let crossing = |y: f64| -> Option<(f64, f64)> {
-        let t = qa_c - y * y;
-        if t < 0.0 || qa_c <= 0.0 {
-            return None;
-        }
+    // Left and right crossing of the line at relative height y (clamped to
+    // the ellipse's x-extent; a line that misses it collapses to the point
+    // below/above the centre, which only the top and bottom bands would see).
+    let crossing = |y: f64| -> (f64, f64) {
+        let half = k_half * (qa_c - y * y).max(0.0).sqrt();
         let mid = k_mid * y;
-        let half = k_half * t.sqrt();
-        Some(((mid - half).max(-hx), (mid + half).min(hx)))
+        ((mid - half).max(-hx), (mid + half).min(hx))
     };
     let last_col = nx - 1;
-    let emit = |x_lo: f64, x_hi: f64| -> Option<(i64, i64)> {
+    let mut emit = |row: usize, x_lo: f64, x_hi: f64| {
         let (lo, hi) = (floor_i64(cx + x_lo).max(0), floor_i64(cx + x_hi).min(last_col));
-        (lo <= hi).then_some((lo, hi))
+        if lo <= hi {
+            span(row, lo as usize, hi as usize);
+        }
     };
+    // Rows (unclipped) holding the bottom, top, leftmost and rightmost points.
+    let (j_bottom, j_top) = (floor_i64(cy - hy), floor_i64(cy + hy));
+    let (j_left, j_right) = (floor_i64(cy - y_right), floor_i64(cy + y_right));
+    if j_bottom == j_top {
+        emit(j_top as usize, -hx, hx);
+        return;
+    }
     let mut below = crossing(j_first as f64 - cy);
     for j in j_first..=j_last {
-        let yb = j as f64 - cy;
-        let yt = yb + 1.0;
-        let above = crossing(yt);
-        let in_band = |y: f64| yb <= y && y < yt;
-        let left_x = if in_band(-y_right) { -hx } else { f64::INFINITY };
-        let right_x = if in_band(y_right) { hx } else { f64::NEG_INFINITY };
         let row = j as usize;
-        match (below, above) {
-            (Some((bl, br)), Some((tl, tr))) => {
-                let l = emit(bl.min(tl).min(left_x), bl.max(tl));
-                let r = emit(br.min(tr), br.max(tr).max(right_x));
-                match (l, r) {
-                    (Some((l0, l1)), Some((r0, r1))) if l1 >= r0 => span(row, l0.min(r0) as usize, l1.max(r1) as usize),
-                    (l, r) => {
-                        if let Some((lo, hi)) = l {
-                            span(row, lo as usize, hi as usize);
-                        }
-                        if let Some((lo, hi)) = r {
-                            span(row, lo as usize, hi as usize);
-                        }
-                    }
-                }
-            }
-            (Some((l, r)), None) | (None, Some((l, r))) => {
-                if let Some((lo, hi)) = emit(l.min(left_x), r.max(right_x)) {
-                    span(row, lo as usize, hi as usize);
-                }
-            }
-            (None, None) => {
-                if let Some((lo, hi)) = emit(-hx, hx) {
-                    span(row, lo as usize, hi as usize);
-                }
-            }
+        let left_x = if j == j_left { -hx } else { f64::INFINITY };
+        let right_x = if j == j_right { hx } else { f64::NEG_INFINITY };
+        if j == j_bottom {
+            // Only the upper line crosses: one arc over the bottom point.
+            let (tl, tr) = crossing(j as f64 + 1.0 - cy);
+            emit(row, tl.min(left_x), tr.max(right_x));
+            below = (tl, tr);
+            continue;
+        }
+        if j == j_top {
+            let (bl, br) = below;
+            emit(row, bl.min(left_x), br.max(right_x));
+            continue;
+        }
+        let above = crossing(j as f64 + 1.0 - cy);
+        let ((bl, br), (tl, tr)) = (below, above);
+        let (l_lo, l_hi) = (bl.min(tl).min(left_x), bl.max(tl));
+        let (r_lo, r_hi) = (br.min(tr), br.max(tr).max(right_x));
+        if floor_i64(cx + r_lo) <= floor_i64(cx + l_hi) {
+            // The two arcs share a cell: one span, never a cell twice.
+            emit(row, l_lo, r_hi.max(l_hi));
+        } else {
+            emit(row, l_lo, l_hi);
+            emit(row, r_lo, r_hi);
         }
         below = above;
     }
