@@ -529,7 +529,7 @@ pub fn range_signal(
     lim: &RangeLimits,
 ) -> Result<Vec<RangedChirp>, crate::error::AudioError> {
     let mut ranger = Ranger::new();
-    let dets = crate::detect::detect_chirps(x, tpl, &mut ranger.cache)?;
+    let dets = crate::detect::detect_chirps(x, tpl, &mut ranger.cache, lim.max_delta_d_m / lim.speed_of_sound_mps)?;
     Ok(dets
         .into_iter()
         .map(|d| {

@@ -239,7 +239,8 @@ fn echoes_from_wav(args: &MapArgs, wav: &Path) -> Result<Vec<Echo>> {
     let prep = crate::cmd_range::prepare(wav, &args.chirp)?;
     let mut cache = chirpmap_audio::spectrum::FftCache::default();
     let dets =
-        chirpmap_audio::detect_chirps(&prep.x, &prep.tpl, &mut cache).with_context(|| format!("{}", wav.display()))?;
+        chirpmap_audio::detect_chirps(&prep.x, &prep.tpl, &mut cache, prep.lim.max_delta_d_m / prep.lim.speed_of_sound_mps)
+            .with_context(|| format!("{}", wav.display()))?;
     let params = chirpmap_audio::frames::FrameParams {
         method: args.method,
         period_s: args.period_ms / 1000.0,
