@@ -384,7 +384,8 @@ mod tests {
         // up to the global level normalisation: find that ratio, subtract.
         let k = n0 + (0..200).max_by(|&i, &j| y_direct[n0 + i].abs().total_cmp(&y_direct[n0 + j].abs())).unwrap();
         let c = f64::from(y_wall[k]) / f64::from(y_direct[k]);
-        let resid: Vec<f32> = y_wall.iter().zip(&y_direct).map(|(w, dd)| (f64::from(*w) - c * f64::from(*dd)) as f32).collect();
+        let resid: Vec<f32> =
+            y_wall.iter().zip(&y_direct).map(|(w, dd)| (f64::from(*w) - c * f64::from(*dd)) as f32).collect();
         let nr = first_nonzero(&resid, n0, 1e-4);
         let expect = (START_S + r / a) * FS;
         assert!((nr as f64 - expect.ceil()).abs() <= 1.0, "reflection onset {nr}, expected {expect}");

@@ -238,9 +238,13 @@ fn echoes_from_wav(args: &MapArgs, wav: &Path) -> Result<Vec<Echo>> {
     let poses = crate::poses_csv::read_poses(poses_path, args.chirp.channel as u32)?;
     let prep = crate::cmd_range::prepare(wav, &args.chirp)?;
     let mut cache = chirpmap_audio::spectrum::FftCache::default();
-    let dets =
-        chirpmap_audio::detect_chirps(&prep.x, &prep.tpl, &mut cache, prep.lim.max_delta_d_m / prep.lim.speed_of_sound_mps)
-            .with_context(|| format!("{}", wav.display()))?;
+    let dets = chirpmap_audio::detect_chirps(
+        &prep.x,
+        &prep.tpl,
+        &mut cache,
+        prep.lim.max_delta_d_m / prep.lim.speed_of_sound_mps,
+    )
+    .with_context(|| format!("{}", wav.display()))?;
     let (p0, p1) = poses.span();
     let t_end = |d: &chirpmap_audio::Detection| (d.onset_sample + prep.tpl.len()) as f64 / prep.sample_rate_hz;
     let covered = dets.iter().filter(|d| poses.at(d.onset_sample as f64 / prep.sample_rate_hz).is_some()).count();

@@ -93,7 +93,8 @@ pub fn prepare(wav: &std::path::Path, c: &ChirpArgs) -> Result<Prepared> {
             x.len() as f64 / fs
         );
     }
-    if !(c.speed_of_sound.is_finite() && (SPEED_OF_SOUND_RANGE.0..=SPEED_OF_SOUND_RANGE.1).contains(&c.speed_of_sound)) {
+    if !(c.speed_of_sound.is_finite() && (SPEED_OF_SOUND_RANGE.0..=SPEED_OF_SOUND_RANGE.1).contains(&c.speed_of_sound))
+    {
         bail!(
             "--speed-of-sound must be between {} and {} m/s (air: about 343), got {}",
             SPEED_OF_SOUND_RANGE.0,

@@ -32,10 +32,13 @@ fn staging_path(path: &Path) -> Result<PathBuf> {
     Ok(path.with_file_name(tmp))
 }
 
+/// Writes one output to the path it is given.
+type Writer<'a> = Box<dyn FnOnce(&Path) -> Result<()> + 'a>;
+
 /// Writes every output through a sibling temporary file and moves them all
 /// into place only when every one was written: a failure leaves none of
 /// them (not a WAV without its poses).
-fn write_all_or_nothing(outputs: Vec<(&Path, Box<dyn FnOnce(&Path) -> Result<()> + '_>)>) -> Result<()> {
+fn write_all_or_nothing(outputs: Vec<(&Path, Writer<'_>)>) -> Result<()> {
     let mut staged: Vec<(PathBuf, &Path)> = Vec::new();
     let cleanup = |staged: &[(PathBuf, &Path)]| {
         for (tmp, _) in staged {
@@ -78,7 +81,7 @@ pub fn run(args: &SynthArgs) -> Result<()> {
     let syn = synthesize(&scene, &cfg).with_context(|| format!("{scene_name}"))?;
     let fmt = cfg.format().with_context(|| format!("{scene_name}: [synth]"))?;
     let chans: Vec<&[f32]> = syn.channels.iter().map(Vec::as_slice).collect();
-    let mut outputs: Vec<(&Path, Box<dyn FnOnce(&Path) -> Result<()> + '_>)> = Vec::new();
+    let mut outputs: Vec<(&Path, Writer<'_>)> = Vec::new();
     outputs.push((&args.out, Box::new(|p: &Path| Ok(write_wav(p, syn.sample_rate_hz, fmt, &chans)?))));
     if let Some(pp) = &args.poses {
         if pp == &args.out {

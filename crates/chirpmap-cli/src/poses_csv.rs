@@ -53,7 +53,13 @@ pub fn read_poses(path: &Path, listener: u32) -> Result<Track> {
         };
         let num = |c: usize| -> Result<f64> {
             let v: f64 = field(c)?.parse().map_err(|_| {
-                anyhow::anyhow!("{}:{}: column {}: {:?} is not a number", path.display(), i + 1, header[c], field(c).unwrap_or(""))
+                anyhow::anyhow!(
+                    "{}:{}: column {}: {:?} is not a number",
+                    path.display(),
+                    i + 1,
+                    header[c],
+                    field(c).unwrap_or("")
+                )
             })?;
             if !v.is_finite() {
                 bail!("{}:{}: column {}: value must be finite", path.display(), i + 1, header[c]);
