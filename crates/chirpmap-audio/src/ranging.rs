@@ -533,8 +533,9 @@ fn solve3(mut g: [[f64; 3]; 3], mut r: [f64; 3]) -> Option<[f64; 3]> {
         r.swap(col, p);
         for row in col + 1..3 {
             let f = g[row][col] / g[col][col];
-            for k in col..3 {
-                g[row][k] -= f * g[col][k];
+            let pivot = g[col];
+            for (gk, pk) in g[row].iter_mut().zip(pivot).skip(col) {
+                *gk -= f * pk;
             }
             r[row] -= f * r[col];
         }
