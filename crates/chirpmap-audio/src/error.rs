@@ -10,7 +10,7 @@ pub enum AudioError {
     Truncated(String),
     #[error("unsupported WAV format: {0} (supported: 16/24/32-bit integer PCM and 32-bit float)")]
     Unsupported(String),
-    #[error("cannot read {path}: {source}")]
+    #[error("cannot read {path}")]
     Io { path: String, source: std::io::Error },
     #[error("WAV write failed: {0}")]
     Write(String),
@@ -25,6 +25,11 @@ pub enum AudioError {
          check --f-start/--f-end/--duration"
     )]
     NoChirp { ratio: f64, need: f64 },
+    #[error(
+        "no chirp found: the best normalised correlation with the chirp is {ncc:.2} (need {need:.2}); \
+         check --f-start/--f-end/--duration"
+    )]
+    NoChirpShape { ncc: f64, need: f64 },
     #[error("speaker and microphone are at the same position ({x}, {y}); the direct distance must be > 0")]
     SpeakerAtMic { x: f64, y: f64 },
     #[error("invalid parameter {field}: {reason}")]

@@ -316,3 +316,83 @@ pub fn synthesize(scene: &Scene, cfg: &SynthConfig) -> Result<Synthesized, Audio
     let chirp_starts_s = (0..cfg.chirps).map(|k| cfg.start_s + k as f64 * period).collect();
     Ok(Synthesized { sample_rate_hz: cfg.sample_rate_hz, channels, poses, chirp_starts_s })
 }
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+
+    const FS: f64 = 48_000.0;
+    const START_S: f64 = 0.1;
+
+    /// One 0.25 s chirp 10 → 0.2 kHz, no taper, no noise, a static mic at
+    /// (1.5, 0.5), the source at the origin and optionally a wall y = −h.
+    fn render(wall_h: Option<f64>) -> (Scene, Vec<f32>) {
+        let wall = wall_h.map_or(String::new(), |h| {
+            format!(
+                "[[obstacles]]\nvertices = [[-30.0, -{h}], [-30.0, -{h2}], [30.0, -{h2}], [30.0, -{h}]]\nabsorption = 0.2\n",
+                h2 = h + 0.3
+            )
+        });
+        let text = format!(
+            "[chirp]\nf_start = 10000.0\nf_end = 200.0\nduration = 0.25\n[source]\nposition = [0.0, 0.0]\n{wall}\
+             [[listeners]]\nstart = [1.5, 0.5]\nspeed = 0.0\n\
+             [synth]\nchirps = 1\nstart_s = {START_S}\ntail_s = 0.2\ntaper_s = 0.0\npeak = 0.5\n"
+        );
+        let (scene, cfg) = parse_scene_with_synth(&text).unwrap();
+        let mut syn = synthesize(&scene, &cfg).unwrap();
+        (scene, syn.channels.remove(0))
+    }
+
+    fn first_nonzero(v: &[f32], from: usize, thr: f32) -> usize {
+        from + v[from..].iter().position(|s| s.abs() > thr).unwrap()
+    }
+
+    #[test]
+    fn direct_arrival_starts_at_d_over_a_with_the_analytic_waveform() {
+        let (scene, y) = render(None);
+        let a = scene.world.speed_of_sound;
+        let d = Point::new(1.5, 0.5).dist(Point::new(0.0, 0.0));
+        let t0 = START_S + d / a;
+        let n0 = first_nonzero(&y, 0, 0.0);
+        // The first sample at or after the arrival (its value may be tiny).
+        let expect = (t0 * FS).ceil();
+        assert!((n0 as f64 - expect).abs() <= 1.0, "onset {n0}, expected {expect}");
+        // Analytic sample value: peak · sin(2π(f0 τ + ½ rate τ²)), τ = n/fs − t0.
+        // The global scale is peak / max|sin| over the samples, within 1e-3 of peak.
+        let n = n0 + 1234;
+        let tau = n as f64 / FS - t0;
+        let rate = (200.0 - 10_000.0) / 0.25;
+        let want = 0.5 * (std::f64::consts::TAU * (10_000.0 * tau + 0.5 * rate * tau * tau)).sin();
+        assert!((f64::from(y[n]) - want).abs() < 1e-3, "y[{n}] = {}, want {want}", y[n]);
+        // The chirp ends T after it starts; nothing after it.
+        let last = y.iter().rposition(|s| *s != 0.0).unwrap();
+        assert!(((last as f64) / FS - (t0 + 0.25)).abs() <= 1.0 / FS, "last sample {last}");
+    }
+
+    #[test]
+    fn wall_reflection_arrives_at_the_image_source_delay() {
+        let h = 4.0;
+        let (_, y_direct) = render(None);
+        let (scene, y_wall) = render(Some(h));
+        let a = scene.world.speed_of_sound;
+        let mic = Point::new(1.5, 0.5);
+        let (d, r) = (mic.dist(Point::new(0.0, 0.0)), mic.dist(Point::new(0.0, -2.0 * h)));
+        let n0 = first_nonzero(&y_wall, 0, 0.0);
+        assert_eq!(n0, first_nonzero(&y_direct, 0, 0.0));
+        // Before the reflection both recordings hold only the direct sound,
+        // up to the global level normalisation: find that ratio, subtract.
+        let k = n0 + (0..200).max_by(|&i, &j| y_direct[n0 + i].abs().total_cmp(&y_direct[n0 + j].abs())).unwrap();
+        let c = f64::from(y_wall[k]) / f64::from(y_direct[k]);
+        let resid: Vec<f32> =
+            y_wall.iter().zip(&y_direct).map(|(w, dd)| (f64::from(*w) - c * f64::from(*dd)) as f32).collect();
+        let nr = first_nonzero(&resid, n0, 1e-4);
+        let expect = (START_S + r / a) * FS;
+        assert!((nr as f64 - expect.ceil()).abs() <= 1.0, "reflection onset {nr}, expected {expect}");
+        // Its level: (1 − absorption) · D / R of the direct's, spreading 1/r.
+        let amp = |v: &[f32], from: usize| v[from..from + 2000].iter().fold(0.0f32, |m, s| m.max(s.abs()));
+        let ratio = f64::from(amp(&resid, nr)) / (c * f64::from(amp(&y_direct, n0)));
+        let want = 0.8 * d / r;
+        assert!((ratio - want).abs() < 0.01 * want, "level ratio {ratio}, want {want}");
+    }
+}

@@ -238,8 +238,39 @@ fn echoes_from_wav(args: &MapArgs, wav: &Path) -> Result<Vec<Echo>> {
     let poses = crate::poses_csv::read_poses(poses_path, args.chirp.channel as u32)?;
     let prep = crate::cmd_range::prepare(wav, &args.chirp)?;
     let mut cache = chirpmap_audio::spectrum::FftCache::default();
-    let dets =
-        chirpmap_audio::detect_chirps(&prep.x, &prep.tpl, &mut cache).with_context(|| format!("{}", wav.display()))?;
+    let dets = chirpmap_audio::detect_chirps(
+        &prep.x,
+        &prep.tpl,
+        &mut cache,
+        prep.lim.max_delta_d_m / prep.lim.speed_of_sound_mps,
+    )
+    .with_context(|| format!("{}", wav.display()))?;
+    let (p0, p1) = poses.span();
+    let t_end = |d: &chirpmap_audio::Detection| (d.onset_sample + prep.tpl.len()) as f64 / prep.sample_rate_hz;
+    let covered = dets.iter().filter(|d| poses.at(d.onset_sample as f64 / prep.sample_rate_hz).is_some()).count();
+    if covered == 0 {
+        bail!(
+            "{}: the poses span {p0:.3}–{p1:.3} s but the recording {} spans 0–{:.3} s and its {} chirp(s) lie at \
+             {:.3}–{:.3} s: no chirp has a pose (wrong poses file?)",
+            poses_path.display(),
+            wav.display(),
+            prep.duration_s,
+            dets.len(),
+            dets.first().map_or(0.0, |d| d.onset_sample as f64 / prep.sample_rate_hz),
+            dets.last().map_or(0.0, t_end),
+        );
+    }
+    if covered < dets.len() {
+        eprintln!(
+            "warning: {}: the poses span {p0:.3}–{p1:.3} s, the recording {} 0–{:.3} s; {} of {} chirp(s) have no pose \
+             and are skipped",
+            poses_path.display(),
+            wav.display(),
+            prep.duration_s,
+            dets.len() - covered,
+            dets.len()
+        );
+    }
     let params = chirpmap_audio::frames::FrameParams {
         method: args.method,
         period_s: args.period_ms / 1000.0,

@@ -52,6 +52,10 @@ pub struct ChirpArgs {
     pub max_delta_d: Option<f64>,
 }
 
+/// Plausible speeds of sound (m/s): from cold air's ~330 with wide margins
+/// for other gases, up to water's ~1500.
+pub const SPEED_OF_SOUND_RANGE: (f64, f64) = (100.0, 2000.0);
+
 /// A loaded, high-passed channel and the chirp template.
 #[derive(Debug)]
 pub struct Prepared {
@@ -80,7 +84,7 @@ pub fn prepare(wav: &std::path::Path, c: &ChirpArgs) -> Result<Prepared> {
         bail!("{}: channel {} is silent (every sample is zero)", wav.display(), c.channel);
     }
     let chirp = LinearChirp::new(c.f_start, c.f_end, c.duration)?;
-    let tpl = ChirpTemplate::new(chirp, fs)?;
+    let tpl = ChirpTemplate::new(chirp, fs).with_context(|| format!("{}", wav.display()))?;
     if tpl.len() > x.len() {
         bail!(
             "{}: the chirp ({} s) is longer than the recording ({:.3} s); check --duration",
@@ -89,14 +93,29 @@ pub fn prepare(wav: &std::path::Path, c: &ChirpArgs) -> Result<Prepared> {
             x.len() as f64 / fs
         );
     }
-    if !(c.speed_of_sound.is_finite() && c.speed_of_sound > 0.0) {
-        bail!("--speed-of-sound must be > 0");
+    if !(c.speed_of_sound.is_finite() && (SPEED_OF_SOUND_RANGE.0..=SPEED_OF_SOUND_RANGE.1).contains(&c.speed_of_sound))
+    {
+        bail!(
+            "--speed-of-sound must be between {} and {} m/s (air: about 343), got {}",
+            SPEED_OF_SOUND_RANGE.0,
+            SPEED_OF_SOUND_RANGE.1,
+            c.speed_of_sound
+        );
     }
     paper_highpass(fs)?.filter_in_place(&mut x);
     let mut lim = RangeLimits::for_chirp(c.duration, c.speed_of_sound);
     if let Some(m) = c.max_delta_d {
         if !(m.is_finite() && m > lim.min_delta_d_m) {
             bail!("--max-delta-d must be > {} m", lim.min_delta_d_m);
+        }
+        // A reflection later than one chirp no longer overlaps its direct
+        // sound, and the search window would reach the next chirp.
+        let most = c.speed_of_sound * c.duration;
+        if m > most {
+            bail!(
+                "--max-delta-d {m} m is longer than a·T = {most:.1} m (speed of sound × --duration); \
+                 echoes that late are not ranged"
+            );
         }
         lim.max_delta_d_m = m;
     }
@@ -247,11 +266,19 @@ pub fn run(args: &RangeArgs) -> Result<()> {
     }
     // Figures of one chirp (the middle one), as the paper's Fig. 8.
     let mid = results.len() / 2;
-    let (det, est) = (&results[mid].0, results[mid].1[0]);
+    let (det, est) = (&results[mid].0, results[mid].1[primary]);
     plot_chirp(&mut out, &prep, det.onset_sample, est, mid, results.len())?;
     summary["elapsed_s"] = json!(started.elapsed().as_secs_f64());
     out.write("summary.json", serde_json::to_string_pretty(&summary)? + "\n")?;
     let dir = out.commit()?;
+    if !args.compare {
+        // A previous `--compare` run into the same directory must not leave
+        // its table beside this run's results.
+        let stale = dir.join("compare.csv");
+        if stale.is_file() {
+            std::fs::remove_file(&stale).with_context(|| format!("cannot remove stale {}", stale.display()))?;
+        }
+    }
     for s in &summaries {
         let wall = match s.get("wall_distance_median").and_then(Value::as_f64) {
             Some(w) => format!(", wall distance median {w:.3} m"),

@@ -1,6 +1,6 @@
 //! `chirpmap synth`: render what the scene's listeners record (issue 5).
 
-use anyhow::{Context, Result, anyhow};
+use anyhow::{Context, Result, anyhow, bail};
 use chirpmap_audio::synth::{parse_scene_with_synth, synthesize};
 use chirpmap_audio::write_wav;
 use clap::Args;
@@ -21,19 +21,55 @@ pub struct SynthArgs {
     pub poses: Option<PathBuf>,
 }
 
-/// Writes through a sibling temporary file so a failure leaves no partial output.
-fn write_atomically(path: &Path, f: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
+/// A sibling temporary path for `path` (created parent directory included).
+fn staging_path(path: &Path) -> Result<PathBuf> {
     if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     }
-    let tmp = path.with_extension(format!("partial-{}", std::process::id()));
-    match f(&tmp) {
-        Ok(()) => std::fs::rename(&tmp, path).with_context(|| format!("cannot move output to {}", path.display())),
-        Err(e) => {
-            std::fs::remove_file(&tmp).ok();
-            Err(e)
+    let name = path.file_name().with_context(|| format!("{} is not a file path", path.display()))?;
+    let mut tmp = name.to_os_string();
+    tmp.push(format!(".partial-{}", std::process::id()));
+    Ok(path.with_file_name(tmp))
+}
+
+/// Writes one output to the path it is given.
+type Writer<'a> = Box<dyn FnOnce(&Path) -> Result<()> + 'a>;
+
+/// Writes every output through a sibling temporary file and moves them all
+/// into place only when every one was written: a failure leaves none of
+/// them (not a WAV without its poses).
+fn write_all_or_nothing(outputs: Vec<(&Path, Writer<'_>)>) -> Result<()> {
+    let mut staged: Vec<(PathBuf, &Path)> = Vec::new();
+    let cleanup = |staged: &[(PathBuf, &Path)]| {
+        for (tmp, _) in staged {
+            std::fs::remove_file(tmp).ok();
+        }
+    };
+    for (path, write) in outputs {
+        let tmp = match staging_path(path) {
+            Ok(t) => t,
+            Err(e) => {
+                cleanup(&staged);
+                return Err(e);
+            }
+        };
+        staged.push((tmp.clone(), path));
+        if let Err(e) = write(&tmp) {
+            cleanup(&staged);
+            return Err(e);
         }
     }
+    for (i, (tmp, path)) in staged.iter().enumerate() {
+        if let Err(e) = std::fs::rename(tmp, path) {
+            cleanup(&staged[i..]);
+            // Outputs already moved would be half a result: remove them.
+            for (_, done) in &staged[..i] {
+                std::fs::remove_file(done).ok();
+            }
+            return Err(e).with_context(|| format!("cannot move output to {}", path.display()));
+        }
+    }
+    Ok(())
 }
 
 pub fn run(args: &SynthArgs) -> Result<()> {
@@ -41,11 +77,16 @@ pub fn run(args: &SynthArgs) -> Result<()> {
     let text =
         std::fs::read_to_string(&args.scene).with_context(|| format!("cannot read scene {}", args.scene.display()))?;
     let (scene, cfg) = parse_scene_with_synth(&text).map_err(|e| anyhow!("{}: {e}", args.scene.display()))?;
-    let syn = synthesize(&scene, &cfg)?;
-    let fmt = cfg.format()?;
+    let scene_name = args.scene.display();
+    let syn = synthesize(&scene, &cfg).with_context(|| format!("{scene_name}"))?;
+    let fmt = cfg.format().with_context(|| format!("{scene_name}: [synth]"))?;
     let chans: Vec<&[f32]> = syn.channels.iter().map(Vec::as_slice).collect();
-    write_atomically(&args.out, |p| Ok(write_wav(p, syn.sample_rate_hz, fmt, &chans)?))?;
+    let mut outputs: Vec<(&Path, Writer<'_>)> = Vec::new();
+    outputs.push((&args.out, Box::new(|p: &Path| Ok(write_wav(p, syn.sample_rate_hz, fmt, &chans)?))));
     if let Some(pp) = &args.poses {
+        if pp == &args.out {
+            bail!("--poses and --out are the same file {}", pp.display());
+        }
         let multi = syn.poses.len() > 1;
         let mut s = String::from(if multi { "t,x,y,listener\n" } else { "t,x,y\n" });
         for (li, poses) in syn.poses.iter().enumerate() {
@@ -57,8 +98,12 @@ pub fn run(args: &SynthArgs) -> Result<()> {
                 }
             }
         }
-        write_atomically(pp, |p| std::fs::write(p, &s).with_context(|| format!("cannot write {}", p.display())))?;
+        outputs.push((
+            pp.as_path(),
+            Box::new(move |p: &Path| std::fs::write(p, &s).with_context(|| format!("cannot write {}", p.display()))),
+        ));
     }
+    write_all_or_nothing(outputs)?;
     let secs = syn.channels.first().map_or(0, Vec::len) as f64 / f64::from(syn.sample_rate_hz);
     println!(
         "{} chirp(s), {} listener(s), {secs:.2} s at {} Hz -> {} in {:.2} s",

@@ -12,6 +12,11 @@ pub struct Track {
 }
 
 impl Track {
+    /// First and last pose times (s).
+    pub fn span(&self) -> (f64, f64) {
+        (self.rows.first().map_or(0.0, |r| r.0), self.rows.last().map_or(0.0, |r| r.0))
+    }
+
     /// Position at `t_s`; `None` outside the recorded span.
     pub fn at(&self, t_s: f64) -> Option<Point> {
         let k = self.rows.partition_point(|r| r.0 <= t_s);
@@ -43,21 +48,36 @@ pub fn read_poses(path: &Path, listener: u32) -> Result<Track> {
             continue;
         }
         let f: Vec<&str> = line.split(',').map(str::trim).collect();
+        let field = |c: usize| -> Result<&str> {
+            f.get(c).copied().with_context(|| format!("{}:{}: missing column {}", path.display(), i + 1, header[c]))
+        };
         let num = |c: usize| -> Result<f64> {
-            let v: f64 = f
-                .get(c)
-                .with_context(|| format!("{}:{}: missing column {c}", path.display(), i + 1))?
-                .parse()
-                .with_context(|| format!("{}:{}: not a number", path.display(), i + 1))?;
+            let v: f64 = field(c)?.parse().map_err(|_| {
+                anyhow::anyhow!(
+                    "{}:{}: column {}: {:?} is not a number",
+                    path.display(),
+                    i + 1,
+                    header[c],
+                    field(c).unwrap_or("")
+                )
+            })?;
             if !v.is_finite() {
-                bail!("{}:{}: value must be finite", path.display(), i + 1);
+                bail!("{}:{}: column {}: value must be finite", path.display(), i + 1, header[c]);
             }
             Ok(v)
         };
-        if let Some(c) = cl
-            && num(c)? as u32 != listener
-        {
-            continue;
+        if let Some(c) = cl {
+            let raw = field(c)?;
+            let id: u32 = raw.parse().map_err(|_| {
+                anyhow::anyhow!(
+                    "{}:{}: column listener: {raw:?} is not a listener number (a whole number from 0)",
+                    path.display(),
+                    i + 1
+                )
+            })?;
+            if id != listener {
+                continue;
+            }
         }
         rows.push((num(ct)?, Point::new(num(cx)?, num(cy)?)));
     }

@@ -139,6 +139,9 @@ fn range_err(wav: &Path, extra: &[&str]) -> (bool, String) {
     let o = run(&args);
     let err = stderr(&o);
     assert!(!err.contains("panicked"), "{err}");
+    if !o.status.success() {
+        assert!(!out.exists(), "a failed run left {}", out.display());
+    }
     (o.status.success(), err)
 }
 
@@ -193,6 +196,7 @@ fn bad_inputs_give_clear_errors_without_panics() {
         d.join("x").to_str().unwrap(),
     ]);
     assert!(!o.status.success() && stderr(&o).contains("same point"), "{}", stderr(&o));
+    assert!(!d.join("x").exists());
     // Missing channel.
     let (ok, e) = range_err(&good, &["--channel", "3"]);
     assert!(!ok && e.contains("channel 3"), "{e}");
@@ -207,4 +211,192 @@ fn bad_inputs_give_clear_errors_without_panics() {
     let (ok, e) = range_err(&pc, &[]);
     assert!(ok, "{e}");
     assert!(e.contains(&format!("{n_file} sample(s) at full scale")), "{e}");
+}
+
+/// Synthesizes `scene_text` into DIR/rec.wav (and DIR/poses.csv).
+fn synth_in(d: &Path, scene_text: &str) -> (PathBuf, PathBuf, PathBuf) {
+    let scene = d.join("scene.toml");
+    std::fs::write(&scene, scene_text).unwrap();
+    let (wav, poses) = (d.join("rec.wav"), d.join("poses.csv"));
+    let o =
+        run(&["synth", scene.to_str().unwrap(), "--out", wav.to_str().unwrap(), "--poses", poses.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    (scene, wav, poses)
+}
+
+fn summary(dir: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap()
+}
+
+#[test]
+fn max_delta_d_beyond_a_chirp_is_rejected_naming_the_flag() {
+    let d = tmp("maxdd");
+    let good = d.join("good.wav");
+    let scene = wall_scene(&d, 4.0);
+    assert!(run(&["synth", scene.to_str().unwrap(), "--out", good.to_str().unwrap()]).status.success());
+    // Used to abort allocating terabytes (matched), or to range the next
+    // chirp's direct sound as a 686 m echo.
+    for extra in [&["--max-delta-d", "1e9", "--method", "matched"][..], &["--max-delta-d", "2000"][..]] {
+        let (ok, e) = range_err(&good, extra);
+        assert!(!ok && e.contains("--max-delta-d") && e.contains("a·T"), "{e}");
+    }
+    // Within a·T but longer than the chirp spacing allows: chirps 0.35 s
+    // apart, echo window T + 60 m / a = 0.425 s.
+    std::fs::write(&scene, std::fs::read_to_string(&scene).unwrap().replace("gap_s = 0.3", "gap_s = 0.1")).unwrap();
+    let close = d.join("close.wav");
+    assert!(run(&["synth", scene.to_str().unwrap(), "--out", close.to_str().unwrap()]).status.success());
+    let (ok, e) = range_err(&close, &["--max-delta-d", "60"]);
+    assert!(!ok && e.contains("--max-delta-d") && e.contains("apart"), "{e}");
+    let (ok, e) = range_err(&close, &["--max-delta-d", "20"]);
+    assert!(ok, "{e}");
+}
+
+#[test]
+fn a_far_echo_is_not_counted_as_another_chirp() {
+    let d = tmp("farecho");
+    // A wall 40 m away: the echo comes 0.23 s after the direct sound,
+    // beyond 0.9 T for T = 0.25 s.
+    let (_, wav, _) = synth_in(
+        &d,
+        "[chirp]\nduration = 0.25\n[[obstacles]]\nvertices = [[-45.0, -40.0], [-45.0, -40.3], [45.0, -40.3], [45.0, -40.0]]\n\
+         [[listeners]]\nstart = [1.5, 0.5]\nspeed = 0.0\n[synth]\nchirps = 10\ngap_s = 0.3\nsnr_db = 20.0\n",
+    );
+    let out = d.join("range");
+    let o = run(&[
+        "range",
+        wav.to_str().unwrap(),
+        "--speaker",
+        "0,0",
+        "--mic",
+        "1.5,0.5",
+        "--duration",
+        "0.25",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(summary(&out)["chirps"], 10);
+}
+
+#[test]
+fn wrong_chirp_parameters_find_no_chirp() {
+    let d = tmp("wrongchirp");
+    let scene = wall_scene(&d, 4.0);
+    let good = d.join("good.wav");
+    assert!(run(&["synth", scene.to_str().unwrap(), "--out", good.to_str().unwrap()]).status.success());
+    // The file holds 0.25 s chirps 10 → 0.2 kHz.
+    for extra in [&["--duration", "0.125"][..], &["--f-start", "3000"][..], &["--duration", "0.5"][..]] {
+        let (ok, e) = range_err(&good, extra);
+        assert!(!ok && e.contains("no chirp found"), "{extra:?}: {e}");
+    }
+    // A template shorter than 64 samples.
+    let (ok, e) = range_err(&good, &["--duration", "0.00001"]);
+    assert!(!ok && e.contains("at least 64 samples") && !e.contains("longer than the recording"), "{e}");
+    // Implausible speed of sound.
+    let (ok, e) = range_err(&good, &["--speed-of-sound", "5"]);
+    assert!(!ok && e.contains("--speed-of-sound"), "{e}");
+}
+
+#[test]
+fn synth_leaves_no_wav_when_the_poses_cannot_be_written() {
+    let d = tmp("synthstage");
+    let scene = wall_scene(&d, 4.0);
+    let (wav, poses) = (d.join("s1.wav"), d.join("isdir.csv"));
+    std::fs::create_dir_all(&poses).unwrap();
+    let o =
+        run(&["synth", scene.to_str().unwrap(), "--out", wav.to_str().unwrap(), "--poses", poses.to_str().unwrap()]);
+    assert!(!o.status.success());
+    assert!(!wav.exists(), "s1.wav left behind: {}", stderr(&o));
+    let left: Vec<_> = std::fs::read_dir(&d).unwrap().map(|e| e.unwrap().file_name()).collect();
+    assert_eq!(left.len(), 2, "{left:?}"); // scene.toml and isdir.csv only
+    // A bad [synth] value names the scene file.
+    let bad = d.join("bad.toml");
+    std::fs::write(&bad, std::fs::read_to_string(&scene).unwrap().replace("chirps = 6", "chirps = 0")).unwrap();
+    let o = run(&["synth", bad.to_str().unwrap(), "--out", wav.to_str().unwrap()]);
+    assert!(!o.status.success() && stderr(&o).contains("bad.toml"), "{}", stderr(&o));
+}
+
+#[test]
+fn errors_name_the_file_once() {
+    let d = tmp("names");
+    // 8 kHz recording: the 10 kHz sweep is above its Nyquist frequency.
+    let p8 = d.join("eight.wav");
+    write_wav(&p8, 8_000, SampleFormat::Int(16), &[&vec![0.1f32; 16_000][..]]).unwrap();
+    let (ok, e) = range_err(&p8, &[]);
+    assert!(!ok && e.contains("Nyquist") && e.contains("eight.wav"), "{e}");
+    // A missing file: the OS error once.
+    let (ok, e) = range_err(&d.join("missing.wav"), &[]);
+    assert!(!ok && e.contains("missing.wav"), "{e}");
+    assert_eq!(e.matches("No such file").count(), 1, "{e}");
+}
+
+#[test]
+fn range_output_has_no_stale_compare_table() {
+    let d = tmp("stale");
+    let scene = wall_scene(&d, 4.0);
+    let good = d.join("good.wav");
+    assert!(run(&["synth", scene.to_str().unwrap(), "--out", good.to_str().unwrap()]).status.success());
+    let (ok, e) = range_err(&good, &["--compare"]);
+    assert!(ok, "{e}");
+    let out = good.with_extension("out");
+    assert!(out.join("compare.csv").is_file());
+    let (ok, e) = range_err(&good, &[]);
+    assert!(ok, "{e}");
+    assert!(!out.join("compare.csv").exists(), "stale compare.csv kept");
+}
+
+fn map_wav(wav: &Path, poses: &Path, out: &Path) -> Output {
+    run(&[
+        "map",
+        "--wav",
+        wav.to_str().unwrap(),
+        "--poses",
+        poses.to_str().unwrap(),
+        "--speaker",
+        "0,0",
+        "--duration",
+        "0.25",
+        "--out",
+        out.to_str().unwrap(),
+    ])
+}
+
+#[test]
+fn map_wav_poses_errors_are_specific() {
+    let d = tmp("posesbad");
+    let (_, wav, poses) = synth_in(
+        &d,
+        "[chirp]\nduration = 0.25\n[[obstacles]]\nvertices = [[-30.0, -6.0], [-30.0, -6.3], [30.0, -6.3], [30.0, -6.0]]\n\
+         [[listeners]]\nstart = [-6.0, 3.0]\nspeed = 1.0\n[synth]\nchirps = 4\ngap_s = 0.25\nsnr_db = 20.0\n",
+    );
+    let out = d.join("map");
+    // Poses from another time span.
+    let shifted = d.join("late.csv");
+    let mut s = String::from("t,x,y\n");
+    for k in 0..100 {
+        s.push_str(&format!("{},{},3\n", 100.0 + f64::from(k) * 0.01, -6.0 + f64::from(k) * 0.01));
+    }
+    std::fs::write(&shifted, s).unwrap();
+    let o = map_wav(&wav, &shifted, &out);
+    let e = stderr(&o);
+    assert!(!o.status.success() && e.contains("late.csv") && e.contains("100.000") && e.contains("rec.wav"), "{e}");
+    // A negative or fractional listener number is rejected, not read as 0.
+    let text = std::fs::read_to_string(&poses).unwrap();
+    for bad in ["-1", "0.5"] {
+        let p = d.join("listener.csv");
+        let mut s = String::from("t,x,y,listener\n");
+        for line in text.lines().skip(1) {
+            s.push_str(&format!("{line},{bad}\n"));
+        }
+        std::fs::write(&p, s).unwrap();
+        let o = map_wav(&wav, &p, &out);
+        let e = stderr(&o);
+        assert!(!o.status.success() && e.contains("listener.csv:2") && e.contains("column listener"), "{e}");
+    }
+    // A bad number names its column.
+    let p = d.join("nan.csv");
+    std::fs::write(&p, "t,x,y\n0,abc,1\n").unwrap();
+    let o = map_wav(&wav, &p, &out);
+    let e = stderr(&o);
+    assert!(!o.status.success() && e.contains("nan.csv:2") && e.contains("column x"), "{e}");
 }
