@@ -270,21 +270,14 @@ pub fn run(args: &RangeArgs) -> Result<()> {
     plot_chirp(&mut out, &prep, det.onset_sample, est, mid, results.len())?;
     summary["elapsed_s"] = json!(started.elapsed().as_secs_f64());
     out.write("summary.json", serde_json::to_string_pretty(&summary)? + "\n")?;
+    // A previous `--compare` run's compare.csv is dropped by the output manifest.
     let dir = out.commit()?;
-    if !args.compare {
-        // A previous `--compare` run into the same directory must not leave
-        // its table beside this run's results.
-        let stale = dir.join("compare.csv");
-        if stale.is_file() {
-            std::fs::remove_file(&stale).with_context(|| format!("cannot remove stale {}", stale.display()))?;
-        }
-    }
     for s in &summaries {
         let wall = match s.get("wall_distance_median").and_then(Value::as_f64) {
             Some(w) => format!(", wall distance median {w:.3} m"),
             None => String::new(),
         };
-        println!(
+        say!(
             "{}: {} chirps, {} estimates, Δd median {}{}",
             s["method"].as_str().unwrap_or(""),
             s["chirps"],
@@ -293,7 +286,7 @@ pub fn run(args: &RangeArgs) -> Result<()> {
             wall
         );
     }
-    println!("wrote {} in {:.2} s", dir.display(), started.elapsed().as_secs_f64());
+    say!("wrote {} in {:.2} s", dir.display(), started.elapsed().as_secs_f64());
     Ok(())
 }
 

@@ -105,7 +105,7 @@ pub fn run(args: &SynthArgs) -> Result<()> {
     }
     write_all_or_nothing(outputs)?;
     let secs = syn.channels.first().map_or(0, Vec::len) as f64 / f64::from(syn.sample_rate_hz);
-    println!(
+    say!(
         "{} chirp(s), {} listener(s), {secs:.2} s at {} Hz -> {} in {:.2} s",
         cfg.chirps,
         syn.channels.len(),
