@@ -98,23 +98,7 @@ fn map_wav_finds_a_wall_from_a_moving_listener() {
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(std::fs::read_to_string(&poses).unwrap().starts_with("t,x,y\n"));
     for method in ["gap", "dechirp"] {
-        let o = run(&[
-            "map",
-            "--wav",
-            wav.to_str().unwrap(),
-            "--poses",
-            poses.to_str().unwrap(),
-            "--speaker",
-            "0,0",
-            "--duration",
-            "0.25",
-            "--method",
-            method,
-            "--scene",
-            scene.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-        ]);
+        let o = map_wav(&wav, &poses, &out, &["--method", method, "--scene", scene.to_str().unwrap()]);
         assert!(o.status.success(), "{method}: {}", stderr(&o));
         let h = std::fs::read_to_string(out.join("highlights.csv")).unwrap();
         let best: Vec<f64> = h.lines().nth(1).unwrap().split(',').map(|v| v.parse().unwrap()).collect();
@@ -345,8 +329,9 @@ fn range_output_has_no_stale_compare_table() {
     assert!(!out.join("compare.csv").exists(), "stale compare.csv kept");
 }
 
-fn map_wav(wav: &Path, poses: &Path, out: &Path) -> Output {
-    run(&[
+/// `chirpmap map --wav` with the moving-wall example's speaker and chirp, plus `extra` flags.
+fn map_wav(wav: &Path, poses: &Path, out: &Path, extra: &[&str]) -> Output {
+    let mut args = vec![
         "map",
         "--wav",
         wav.to_str().unwrap(),
@@ -358,7 +343,9 @@ fn map_wav(wav: &Path, poses: &Path, out: &Path) -> Output {
         "0.25",
         "--out",
         out.to_str().unwrap(),
-    ])
+    ];
+    args.extend_from_slice(extra);
+    run(&args)
 }
 
 #[test]
@@ -377,7 +364,7 @@ fn map_wav_poses_errors_are_specific() {
         s.push_str(&format!("{},{},3\n", 100.0 + f64::from(k) * 0.01, -6.0 + f64::from(k) * 0.01));
     }
     std::fs::write(&shifted, s).unwrap();
-    let o = map_wav(&wav, &shifted, &out);
+    let o = map_wav(&wav, &shifted, &out, &[]);
     let e = stderr(&o);
     assert!(!o.status.success() && e.contains("late.csv") && e.contains("100.000") && e.contains("rec.wav"), "{e}");
     // A negative or fractional listener number is rejected, not read as 0.
@@ -389,14 +376,14 @@ fn map_wav_poses_errors_are_specific() {
             s.push_str(&format!("{line},{bad}\n"));
         }
         std::fs::write(&p, s).unwrap();
-        let o = map_wav(&wav, &p, &out);
+        let o = map_wav(&wav, &p, &out, &[]);
         let e = stderr(&o);
         assert!(!o.status.success() && e.contains("listener.csv:2") && e.contains("column listener"), "{e}");
     }
     // A bad number names its column.
     let p = d.join("nan.csv");
     std::fs::write(&p, "t,x,y\n0,abc,1\n").unwrap();
-    let o = map_wav(&wav, &p, &out);
+    let o = map_wav(&wav, &p, &out, &[]);
     let e = stderr(&o);
     assert!(!o.status.success() && e.contains("nan.csv:2") && e.contains("column x"), "{e}");
 }
