@@ -15,6 +15,7 @@ mod cmd_simulate;
 mod cmd_sweep;
 mod cmd_synth;
 mod echoes_csv;
+mod mapdata;
 mod output;
 mod plot;
 mod plot_audio;

@@ -1,0 +1,310 @@
+//! Maps as data (issue 13, item 5): every map a command draws is also written
+//! as numbers, so it can be re-plotted or post-processed without chirpmap.
+//!
+//! - `map.npy`: the grid as a NumPy array (format version 1.0, NEP 1
+//!   "A Simple File Format for NumPy Arrays", Kern 2007), `float32`,
+//!   little-endian, C order, shape `(ny, nx)`; row `j` is the grid row at
+//!   `y_min + j·cell` (row 0 = `y_min`, as [`chirpmap_core::Grid`] stores it),
+//!   so `np.load("map.npy")[j, i]` is cell `(i, j)`. The world placement is in
+//!   `summary.json`'s `grid` (`bounds`, `nx`, `ny`, `cell`).
+//! - `map.pgm` + `map.yaml`: a ROS `map_server` occupancy map (binary PGM
+//!   "P5", 8 bit; the YAML gives `image`, `resolution`, `origin`, `negate`,
+//!   `occupied_thresh`, `free_thresh` as `map_server` reads them). Image rows
+//!   run top = `y_max` to bottom = `y_min`, which is how `map_server` places
+//!   an image whose `origin` is its lower-left corner.
+//!
+//! Functions return bytes (for `output::Staged::write`) or write a given path.
+
+// The commands call these once the lead wires `--plot-format`/map data (issue 13).
+#![allow(dead_code)]
+
+use anyhow::{Context, Result, bail};
+use chirpmap_core::Grid;
+use std::fmt::Write as _;
+use std::path::Path;
+
+/// `occupied_thresh` written into `map.yaml`: cells with occupancy above it
+/// are obstacles (the ROS `map_server` tutorial's value).
+pub const OCCUPIED_THRESH: f64 = 0.65;
+/// `free_thresh` written into `map.yaml`: cells with occupancy below it are
+/// free (the ROS `map_server` tutorial's value).
+pub const FREE_THRESH: f64 = 0.196;
+
+/// How the grid's values become occupancy in `map.pgm`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MapValues {
+    /// Values are occupancy probabilities in `[0, 1]` (e.g. a probabilistic
+    /// mapper's output); anything outside is an error.
+    Probability,
+    /// Values are non-negative evidence on any scale (e.g. Algorithm 1's
+    /// accumulated weight); occupancy = value / max (all free when max = 0).
+    Evidence,
+}
+
+fn check_shape(grid: &Grid) -> Result<()> {
+    let spec = grid.spec;
+    let n = spec.nx.checked_mul(spec.ny).context("grid size overflows")?;
+    if n == 0 || grid.data.len() != n {
+        bail!("grid data has {} values but the spec says {} × {}", grid.data.len(), spec.nx, spec.ny);
+    }
+    Ok(())
+}
+
+/// The NumPy v1.0 header for a little-endian float32 C-order array of
+/// `shape`: magic, version, header length and the dict, padded with spaces
+/// and a final newline so the data starts at a multiple of 64 bytes (NEP 1;
+/// NumPy itself aligns to 64).
+fn npy_header(shape: (usize, usize)) -> Result<Vec<u8>> {
+    let dict = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': ({}, {}), }}", shape.0, shape.1);
+    // 6 magic + 2 version + 2 length bytes precede the dict.
+    let unpadded = 10 + dict.len() + 1;
+    let total = unpadded.div_ceil(64) * 64;
+    let header_len = u16::try_from(total - 10).context("npy header longer than 65535 bytes")?;
+    let mut out = Vec::with_capacity(total);
+    out.extend_from_slice(b"\x93NUMPY");
+    out.extend_from_slice(&[1, 0]);
+    out.extend_from_slice(&header_len.to_le_bytes());
+    out.extend_from_slice(dict.as_bytes());
+    out.resize(total - 1, b' ');
+    out.push(b'\n');
+    Ok(out)
+}
+
+/// `map.npy` bytes of `grid` (see the module docs for the layout). Values
+/// are rounded to f32, the precision any plot needs; NaN and ±∞ pass
+/// through unchanged.
+pub fn npy_bytes(grid: &Grid) -> Result<Vec<u8>> {
+    check_shape(grid)?;
+    let mut out = npy_header((grid.spec.ny, grid.spec.nx))?;
+    out.reserve(grid.data.len() * 4);
+    for &v in &grid.data {
+        out.extend_from_slice(&(v as f32).to_le_bytes());
+    }
+    Ok(out)
+}
+
+/// Writes [`npy_bytes`] to `path`.
+pub fn write_npy(path: &Path, grid: &Grid) -> Result<()> {
+    std::fs::write(path, npy_bytes(grid)?).with_context(|| format!("cannot write {}", path.display()))
+}
+
+/// Occupancy in `[0, 1]` of every cell under `values`, or an error naming
+/// the first cell that does not fit the interpretation.
+fn occupancy(grid: &Grid, values: MapValues) -> Result<Vec<f64>> {
+    let bad = |k: usize, v: f64, what: &str| {
+        let (i, j) = (k % grid.spec.nx, k / grid.spec.nx);
+        anyhow::anyhow!("cell ({i}, {j}) holds {v}, not {what}")
+    };
+    match values {
+        MapValues::Probability => grid
+            .data
+            .iter()
+            .enumerate()
+            .map(|(k, &v)| if (0.0..=1.0).contains(&v) { Ok(v) } else { Err(bad(k, v, "a probability in [0, 1]")) })
+            .collect(),
+        MapValues::Evidence => {
+            if let Some((k, &v)) = grid.data.iter().enumerate().find(|(_, v)| !(v.is_finite() && **v >= 0.0)) {
+                return Err(bad(k, v, "finite non-negative evidence"));
+            }
+            let max = grid.data.iter().copied().fold(0.0, f64::max);
+            Ok(grid.data.iter().map(|&v| if max > 0.0 { v / max } else { 0.0 }).collect())
+        }
+    }
+}
+
+/// Grey level of occupancy `p` for `map_server` with `negate: 0`, which reads
+/// a pixel `g` as occupancy `(255 − g) / 255`: black = occupied, white = free.
+fn grey_of(p: f64) -> u8 {
+    (255.0 * (1.0 - p)).round().clamp(0.0, 255.0) as u8
+}
+
+/// A ROS `map_server` map: the PGM image and its YAML description.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RosMap {
+    /// Binary PGM (P5), `nx` × `ny`, top row = `y_max`.
+    pub pgm: Vec<u8>,
+    /// `map.yaml` text naming `image`.
+    pub yaml: String,
+}
+
+/// Builds the ROS map of `grid`; `image` is the PGM's file name as the YAML
+/// refers to it (relative to the YAML file, e.g. `"map.pgm"`).
+pub fn ros_map(grid: &Grid, values: MapValues, image: &str) -> Result<RosMap> {
+    check_shape(grid)?;
+    let spec = grid.spec;
+    let occ = occupancy(grid, values)?;
+    let mut pgm = format!("P5\n{} {}\n255\n", spec.nx, spec.ny).into_bytes();
+    pgm.reserve(occ.len());
+    for row in occ.chunks_exact(spec.nx).rev() {
+        pgm.extend(row.iter().map(|&p| grey_of(p)));
+    }
+    let mut yaml = String::new();
+    // Debug formatting keeps a decimal point ("-50.0"), so YAML reads floats.
+    let _ = writeln!(yaml, "image: {image}");
+    let _ = writeln!(yaml, "resolution: {:?}", spec.cell_m);
+    let _ = writeln!(yaml, "origin: [{:?}, {:?}, 0.0]", spec.x_min_m, spec.y_min_m);
+    let _ = writeln!(yaml, "negate: 0");
+    let _ = writeln!(yaml, "occupied_thresh: {OCCUPIED_THRESH:?}");
+    let _ = writeln!(yaml, "free_thresh: {FREE_THRESH:?}");
+    Ok(RosMap { pgm, yaml })
+}
+
+/// Writes `pgm_path` and, beside it, the YAML with the same stem
+/// (`map.pgm` → `map.yaml`).
+pub fn write_ros_map(pgm_path: &Path, grid: &Grid, values: MapValues) -> Result<()> {
+    let image = pgm_path
+        .file_name()
+        .and_then(|n| n.to_str())
+        .with_context(|| format!("{} has no UTF-8 file name", pgm_path.display()))?;
+    let map = ros_map(grid, values, image)?;
+    let yaml_path = pgm_path.with_extension("yaml");
+    std::fs::write(pgm_path, &map.pgm).with_context(|| format!("cannot write {}", pgm_path.display()))?;
+    std::fs::write(&yaml_path, &map.yaml).with_context(|| format!("cannot write {}", yaml_path.display()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use chirpmap_core::GridSpec;
+    use proptest::prelude::*;
+
+    fn grid(nx: usize, ny: usize, data: Vec<f64>) -> Grid {
+        Grid { spec: GridSpec { x_min_m: -2.5, y_min_m: 1.0, cell_m: 0.5, nx, ny }, data }
+    }
+
+    /// Independent NPY reader (NEP 1): checks magic, version, alignment and
+    /// the dict, returns the shape and the values.
+    fn read_npy(b: &[u8]) -> ((usize, usize), Vec<f32>) {
+        assert_eq!(&b[..6], b"\x93NUMPY");
+        assert_eq!(&b[6..8], &[1, 0]);
+        let hl = u16::from_le_bytes([b[8], b[9]]) as usize;
+        assert_eq!((10 + hl) % 64, 0, "data must start 64-byte aligned");
+        let header = std::str::from_utf8(&b[10..10 + hl]).unwrap();
+        assert!(header.ends_with('\n'));
+        assert!(header.contains("'descr': '<f4'") && header.contains("'fortran_order': False"), "{header}");
+        let shape = header.split("'shape': (").nth(1).unwrap().split(')').next().unwrap();
+        let dims: Vec<usize> = shape.split(',').map(|s| s.trim().parse().unwrap()).collect();
+        let data: Vec<f32> =
+            b[10 + hl..].chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
+        assert_eq!(b[10 + hl..].len() % 4, 0);
+        ((dims[0], dims[1]), data)
+    }
+
+    #[test]
+    fn npy_is_rows_of_y_with_row_zero_at_y_min() {
+        // 3 wide, 2 tall: cell (i, j) holds 10·j + i.
+        let g = grid(3, 2, vec![0.0, 1.0, 2.0, 10.0, 11.0, 12.0]);
+        let (shape, data) = read_npy(&npy_bytes(&g).unwrap());
+        assert_eq!(shape, (2, 3));
+        assert_eq!(data, vec![0.0, 1.0, 2.0, 10.0, 11.0, 12.0]);
+        // The dict is spelled as NumPy writes it (key order, spacing, trailing comma).
+        let b = npy_bytes(&g).unwrap();
+        assert!(b.starts_with(b"\x93NUMPY\x01\x00\x76\x00{'descr': '<f4', 'fortran_order': False, 'shape': (2, 3), }"));
+    }
+
+    #[test]
+    fn shape_mismatch_is_an_error_not_a_panic() {
+        assert!(npy_bytes(&grid(3, 2, vec![0.0; 5])).is_err());
+        assert!(ros_map(&grid(0, 2, vec![]), MapValues::Evidence, "m.pgm").is_err());
+    }
+
+    #[test]
+    fn pgm_top_row_is_y_max_and_black_is_occupied() {
+        // Row j = 0 (y_min) certainly free, row j = 1 (y_max) certainly occupied.
+        let g = grid(2, 2, vec![0.0, 0.0, 1.0, 1.0]);
+        let m = ros_map(&g, MapValues::Probability, "map.pgm").unwrap();
+        let header = b"P5\n2 2\n255\n";
+        assert_eq!(&m.pgm[..header.len()], header);
+        assert_eq!(&m.pgm[header.len()..], &[0, 0, 255, 255]);
+        assert_eq!(
+            m.yaml,
+            "image: map.pgm\nresolution: 0.5\norigin: [-2.5, 1.0, 0.0]\nnegate: 0\n\
+             occupied_thresh: 0.65\nfree_thresh: 0.196\n"
+        );
+    }
+
+    #[test]
+    fn evidence_is_normalised_by_its_max_and_checked() {
+        let g = grid(2, 1, vec![2.0, 4.0]);
+        let m = ros_map(&g, MapValues::Evidence, "map.pgm").unwrap();
+        // 2/4 → 255·0.5 = 127.5 → 128; 4/4 → 0.
+        assert_eq!(&m.pgm[m.pgm.len() - 2..], &[128, 0]);
+        assert!(ros_map(&grid(2, 1, vec![0.0, 0.0]), MapValues::Evidence, "m").unwrap().pgm.ends_with(&[255, 255]));
+        let e = ros_map(&grid(2, 1, vec![1.0, -1.0]), MapValues::Evidence, "m").unwrap_err();
+        assert!(e.to_string().contains("cell (1, 0)"), "{e}");
+        assert!(ros_map(&grid(2, 1, vec![0.5, f64::NAN]), MapValues::Evidence, "m").is_err());
+        assert!(ros_map(&grid(2, 1, vec![0.5, 1.5]), MapValues::Probability, "m").is_err());
+        assert!(ros_map(&grid(2, 1, vec![0.5, 1.5]), MapValues::Evidence, "m").is_ok());
+    }
+
+    #[test]
+    fn writers_put_files_where_asked() {
+        let dir = tempfile::tempdir().unwrap();
+        let g = grid(3, 2, vec![0.0, 1.0, 2.0, 3.0, 4.0, 5.0]);
+        write_npy(&dir.path().join("map.npy"), &g).unwrap();
+        write_ros_map(&dir.path().join("map.pgm"), &g, MapValues::Evidence).unwrap();
+        assert_eq!(std::fs::read(dir.path().join("map.npy")).unwrap(), npy_bytes(&g).unwrap());
+        let yaml = std::fs::read_to_string(dir.path().join("map.yaml")).unwrap();
+        assert!(yaml.starts_with("image: map.pgm\n"), "{yaml}");
+    }
+
+    /// Cross-check with NumPy itself when python3 with numpy is installed;
+    /// skipped (with a note) otherwise.
+    #[test]
+    fn numpy_reads_the_file_back() {
+        let have_numpy = std::process::Command::new("python3")
+            .args(["-c", "import numpy"])
+            .output()
+            .is_ok_and(|o| o.status.success());
+        if !have_numpy {
+            eprintln!("skipped: python3 with numpy not found");
+            return;
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("map.npy");
+        let g = grid(4, 3, (0..12).map(|k| f64::from(k) * 0.25 - 1.0).collect());
+        write_npy(&path, &g).unwrap();
+        let script = "import numpy as np, sys\n\
+                      a = np.load(sys.argv[1])\n\
+                      assert a.dtype == np.float32 and a.shape == (3, 4), (a.dtype, a.shape)\n\
+                      print(' '.join(repr(float(v)) for v in a[2, :]), float(a[0, 1]))";
+        let out = std::process::Command::new("python3").args(["-c", script]).arg(&path).output().unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        // Row 2 (the top, y_max) is cells 8..12; a[0, 1] is cell (1, 0).
+        assert_eq!(String::from_utf8_lossy(&out.stdout).trim(), "1.0 1.25 1.5 1.75 -0.75");
+    }
+
+    proptest! {
+        #[test]
+        fn npy_round_trips_any_grid(nx in 1usize..40, ny in 1usize..40, seed in any::<u64>()) {
+            let data: Vec<f64> = (0..nx * ny)
+                .map(|k| ((k as u64).wrapping_mul(6364136223846793005).wrapping_add(seed) >> 11) as f64 * 1e-9)
+                .collect();
+            let g = grid(nx, ny, data.clone());
+            let (shape, back) = read_npy(&npy_bytes(&g).unwrap());
+            prop_assert_eq!(shape, (ny, nx));
+            for (a, b) in back.iter().zip(&data) {
+                prop_assert_eq!(*a, *b as f32);
+            }
+        }
+
+        #[test]
+        fn pgm_matches_a_naive_per_cell_oracle(nx in 1usize..20, ny in 1usize..20, scale in 0.1f64..100.0) {
+            let data: Vec<f64> = (0..nx * ny).map(|k| ((k * 37) % 11) as f64 * scale).collect();
+            let g = grid(nx, ny, data);
+            let m = ros_map(&g, MapValues::Evidence, "m.pgm").unwrap();
+            let max = g.max();
+            let head = format!("P5\n{nx} {ny}\n255\n").len();
+            for r in 0..ny {
+                for i in 0..nx {
+                    let j = ny - 1 - r;
+                    let p = if max > 0.0 { g.get(i, j) / max } else { 0.0 };
+                    let want = (255.0 - 255.0 * p).round() as u8;
+                    prop_assert_eq!(m.pgm[head + r * nx + i], want);
+                    // map_server's reading of the grey level gives back the occupancy.
+                    prop_assert!(((255.0 - f64::from(want)) / 255.0 - p).abs() <= 0.5 / 255.0 + 1e-12);
+                }
+            }
+        }
+    }
+}
