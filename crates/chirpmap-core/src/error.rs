@@ -4,11 +4,11 @@ use thiserror::Error;
 /// the CLI can point the user at the offending line.
 #[derive(Debug, Error, Clone, PartialEq)]
 pub enum CoreError {
-    #[error("{field} must be finite, got {value}")]
+    #[error("{field} must be finite, got {}", Num(*value))]
     NotFinite { field: &'static str, value: f64 },
-    #[error("delta_d must be >= 0 m, got {0}")]
+    #[error("delta_d must be >= 0 m, got {}", Num(*.0))]
     NegativeDeltaD(f64),
-    #[error("source and listener coincide at ({x}, {y}); the ellipse is undefined")]
+    #[error("source and listener coincide at ({}, {}); the ellipse is undefined", Num(*x), Num(*y))]
     CoincidentFoci { x: f64, y: f64 },
     #[error("invalid chirp: {0}")]
     InvalidChirp(String),
@@ -30,4 +30,142 @@ pub enum CoreError {
 /// Returns `value` if finite, otherwise a [`CoreError::NotFinite`] naming `field`.
 pub fn finite(field: &'static str, value: f64) -> Result<f64, CoreError> {
     if value.is_finite() { Ok(value) } else { Err(CoreError::NotFinite { field, value }) }
+}
+
+/// A number as a person writes it, for error messages: at most six
+/// significant digits, plain notation from 10⁻⁴ to 10⁹ and scientific beyond
+/// (`1e300`, not 301 digits), and `NaN`, `inf`, `-inf` for non-finite values.
+/// Used wherever a user's value is quoted back (issue 8, item 16).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Num(pub f64);
+
+fn trim_zeros(s: &str) -> &str {
+    if s.contains('.') { s.trim_end_matches('0').trim_end_matches('.') } else { s }
+}
+
+impl std::fmt::Display for Num {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let v = self.0;
+        if v.is_nan() {
+            return f.write_str("NaN");
+        }
+        if v.is_infinite() {
+            return f.write_str(if v > 0.0 { "inf" } else { "-inf" });
+        }
+        if v == 0.0 {
+            return f.write_str("0");
+        }
+        let mag = v.abs();
+        if (1e-4..1e9).contains(&mag) {
+            // Six significant digits: decimals = 5 − ⌊log10 |v|⌋.
+            let decimals = (5 - mag.log10().floor() as i32).max(0) as usize;
+            let s = format!("{v:.decimals$}");
+            f.write_str(trim_zeros(&s))
+        } else {
+            let s = format!("{v:.5e}");
+            let (mantissa, exp) = s.split_once('e').unwrap_or((&s, "0"));
+            write!(f, "{}e{exp}", trim_zeros(mantissa))
+        }
+    }
+}
+
+/// Longest excerpt of an offending input line quoted in an error (characters).
+pub const EXCERPT_CHARS: usize = 60;
+
+/// At most [`EXCERPT_CHARS`] characters of `line` around character column
+/// `col` (0-based), with `…` where it was cut: a 1 MB line is quoted as a
+/// short excerpt, once (issue 8, item 15).
+pub fn excerpt(line: &str, col: usize) -> String {
+    let chars: Vec<char> = line.chars().collect();
+    if chars.len() <= EXCERPT_CHARS {
+        return chars.iter().collect();
+    }
+    let start = col.saturating_sub(EXCERPT_CHARS / 2).min(chars.len() - EXCERPT_CHARS);
+    let end = start + EXCERPT_CHARS;
+    let mut s = String::new();
+    if start > 0 {
+        s.push('…');
+    }
+    s.extend(&chars[start..end]);
+    if end < chars.len() {
+        s.push('…');
+    }
+    s
+}
+
+/// A one-line description of a TOML error in `text`: `line L, column C: what
+/// (near `excerpt`)`. The `toml` crate's own `Display` quotes the whole
+/// offending line (and the message may repeat the value), so a 1 MB value
+/// gave megabytes of error text; this quotes a short excerpt once.
+pub fn toml_error(text: &str, e: &toml::de::Error) -> String {
+    let mut msg: String = e.message().lines().next().unwrap_or("").to_string();
+    if msg.chars().count() > 2 * EXCERPT_CHARS {
+        msg = excerpt(&msg, 0);
+    }
+    let Some(span) = e.span() else { return msg };
+    let at = span.start.min(text.len());
+    let at = (0..=at).rev().find(|&i| text.is_char_boundary(i)).unwrap_or(0);
+    let line_start = text[..at].rfind('\n').map_or(0, |p| p + 1);
+    let line_end = text[at..].find('\n').map_or(text.len(), |p| at + p);
+    let line_no = text[..line_start].matches('\n').count() + 1;
+    let line = text[line_start..line_end].trim_end_matches('\r');
+    let col = text[line_start..at].chars().count();
+    format!("line {line_no}, column {}: {msg} (near `{}`)", col + 1, excerpt(line, col))
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn numbers_print_as_a_person_writes_them() {
+        let cases = [
+            (0.0, "0"),
+            (343.0, "343"),
+            (0.1, "0.1"),
+            (0.1 + 0.2, "0.3"),
+            (-2.5, "-2.5"),
+            (1e300, "1e300"),
+            (4294967295.0, "4.29497e9"),
+            (1e-9, "1e-9"),
+            (123456.789, "123457"),
+            (f64::NAN, "NaN"),
+            (f64::INFINITY, "inf"),
+            (f64::NEG_INFINITY, "-inf"),
+            (f64::MAX, "1.79769e308"),
+        ];
+        for (v, want) in cases {
+            assert_eq!(Num(v).to_string(), want, "{v:e}");
+        }
+        let e = CoreError::NotFinite { field: "x", value: f64::NAN }.to_string();
+        assert_eq!(e, "x must be finite, got NaN");
+        let e = CoreError::NegativeDeltaD(-1e300).to_string();
+        assert!(e.len() < 40, "{e}");
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn formatted_numbers_are_short_and_close(v in proptest::num::f64::ANY) {
+            let s = Num(v).to_string();
+            proptest::prop_assert!(s.len() <= 13, "{} -> {}", v, s);
+            if v.is_finite() {
+                let back: f64 = s.parse().unwrap();
+                proptest::prop_assert!((back - v).abs() <= 1e-5 * v.abs() + 1e-300, "{} -> {}", v, s);
+            }
+        }
+    }
+
+    #[test]
+    fn toml_errors_quote_a_short_excerpt_once() {
+        let long = "x".repeat(1_000_000);
+        let text = format!("[world]\nspeed_of_sound = \"{long}\" junk\n");
+        let e = toml::from_str::<toml::Table>(&text).unwrap_err();
+        let msg = toml_error(&text, &e);
+        assert!(msg.len() < 300, "{} chars: {}", msg.len(), &msg[..300.min(msg.len())]);
+        assert!(msg.starts_with("line 2, column "), "{msg}");
+        assert_eq!(excerpt("abc", 1), "abc");
+        let cut = excerpt(&"0123456789".repeat(20), 100);
+        assert!(cut.starts_with('…') && cut.ends_with('…') && cut.chars().count() == EXCERPT_CHARS + 2, "{cut}");
+    }
 }

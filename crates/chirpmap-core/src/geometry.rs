@@ -42,6 +42,27 @@ impl Point {
     }
 }
 
+/// `(x, y)` with the numbers as a person writes them ([`crate::error::Num`]),
+/// for error messages: never `Point { x: NaN, .. }` or 300-digit decimals.
+impl std::fmt::Display for Point {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        use crate::error::Num;
+        write!(f, "({}, {})", Num(self.x), Num(self.y))
+    }
+}
+
+/// Largest |coordinate| (m) a user may give for a position: a million metres
+/// is already far beyond any scene of the paper (100 m worlds) and keeps every
+/// squared distance far from overflow (issue 8, item 16).
+pub const MAX_COORD_M: f64 = 1e6;
+
+impl Point {
+    /// Whether both coordinates are finite and within ±[`MAX_COORD_M`].
+    pub fn is_sane(self) -> bool {
+        self.is_finite() && self.x.abs() <= MAX_COORD_M && self.y.abs() <= MAX_COORD_M
+    }
+}
+
 impl std::ops::Add for Point {
     type Output = Point;
     fn add(self, o: Point) -> Point {
@@ -94,8 +115,8 @@ impl Circle {
     pub fn new(center: Point, radius_m: f64) -> Result<Self, CoreError> {
         if !center.is_finite() || !radius_m.is_finite() || radius_m <= 0.0 {
             return Err(CoreError::InvalidGeometry(format!(
-                "circle needs a finite centre and radius > 0, got centre ({}, {}) radius {radius_m}",
-                center.x, center.y
+                "circle needs a finite centre and radius > 0, got centre {center} radius {}",
+                crate::error::Num(radius_m)
             )));
         }
         Ok(Self { center, radius_m })
@@ -117,7 +138,7 @@ impl Polygon {
             )));
         }
         if let Some(p) = vertices.iter().find(|p| !p.is_finite()) {
-            return Err(CoreError::InvalidGeometry(format!("polygon vertex ({}, {}) is not finite", p.x, p.y)));
+            return Err(CoreError::InvalidGeometry(format!("polygon vertex {p} is not finite")));
         }
         let poly = Self { vertices };
         if poly.signed_area().abs() < 1e-12 {

@@ -35,6 +35,11 @@ impl Default for MappingParams {
     }
 }
 
+/// Largest `ellipse_points`: every echo costs this many point placements, so
+/// 4294967295 ran for hours (issue 8, item 10); the authors' reading needs a
+/// few thousand (EXPERIMENTS.md compares 1000 and 3600).
+pub const MAX_ELLIPSE_POINTS: u32 = 100_000;
+
 impl MappingParams {
     pub fn validate(&self) -> Result<(), CoreError> {
         let bad = |field: &'static str, reason: &str| Err(CoreError::InvalidParam { field, reason: reason.into() });
@@ -49,6 +54,12 @@ impl MappingParams {
         }
         if !(self.peak_radius.is_finite() && self.peak_radius >= 0.0) {
             return bad("peak_radius", "must be finite and >= 0");
+        }
+        if self.ellipse_points > MAX_ELLIPSE_POINTS {
+            return Err(CoreError::InvalidParam {
+                field: "ellipse_points",
+                reason: format!("must be at most {MAX_ELLIPSE_POINTS}, got {}", self.ellipse_points),
+            });
         }
         Ok(())
     }
@@ -90,12 +101,16 @@ pub struct AccumulationMapper {
     grid: Grid,
     params: MappingParams,
     cells_updated: u64,
+    /// Upper bound on any cell's value: the sum of every added weight times
+    /// the most times one echo can add it to a cell. While it is finite no
+    /// cell can overflow to infinity (issue 8, item 7).
+    max_cell_bound: f64,
 }
 
 impl AccumulationMapper {
     pub fn new(spec: GridSpec, params: MappingParams) -> Result<Self, CoreError> {
         params.validate()?;
-        Ok(Self { grid: Grid::zeros(spec), params, cells_updated: 0 })
+        Ok(Self { grid: Grid::zeros(spec), params, cells_updated: 0, max_cell_bound: 0.0 })
     }
 
     /// Total cell updates so far (for benchmarks and progress reporting).
@@ -105,6 +120,28 @@ impl AccumulationMapper {
 
     fn accumulate(&mut self, echo: &Echo) -> Result<(), CoreError> {
         let e = echo.ellipse()?;
+        // `Echo`'s fields are public, so check the weight here too, and refuse
+        // an echo that could make a cell infinite (the plot's colour bar over
+        // 0..inf hung `map`): checked before any cell changes.
+        if !(echo.weight.is_finite() && echo.weight >= 0.0) {
+            return Err(CoreError::InvalidParam {
+                field: "weight",
+                reason: format!("must be finite and >= 0, got {}", crate::error::Num(echo.weight)),
+            });
+        }
+        let per_cell = f64::from(self.params.ellipse_points.max(1));
+        let bound = self.max_cell_bound + echo.weight * per_cell;
+        if !bound.is_finite() {
+            return Err(CoreError::InvalidParam {
+                field: "weight",
+                reason: format!(
+                    "the echoes' weights add up beyond the largest number ({:e}); a cell of the map would be \
+                     infinite. Scale the weights down",
+                    f64::MAX
+                ),
+            });
+        }
+        self.max_cell_bound = bound;
         let spec = self.grid.spec;
         let (data, w) = (&mut self.grid.data, echo.weight);
         let mut n = 0u64;
