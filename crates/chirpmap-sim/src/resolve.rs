@@ -17,22 +17,20 @@ pub const BIN_HZ: f64 = 10.0;
 /// Random obstacles keep at least this gap (m) from the source.
 pub const SOURCE_CLEARANCE_M: f64 = 1.0;
 const MAX_PARTICLES: u64 = 2_000_000_000;
-/// Particles per tick: the direction table holds one 16-byte entry each
-/// (10⁶ = 16 MB; the paper uses 3600).
-pub const MAX_PER_TICK: u32 = 1_000_000;
+/// Particles per tick (checked by [`Scene::validate`]).
+pub const MAX_PER_TICK: u32 = chirpmap_core::scene::MAX_PER_TICK;
 /// Measurements over all listeners together (a measurement index is a `u32`).
 pub const MAX_MEASUREMENTS: usize = 10_000_000;
-/// Largest |spin_rate| (rad/s): one full turn per second (the paper uses π/4).
-pub const MAX_SPIN_RPS: f64 = std::f64::consts::TAU;
+/// Largest |spin_rate| (rad/s), checked by [`Scene::validate`].
+pub const MAX_SPIN_RPS: f64 = chirpmap_core::scene::MAX_SPIN_RPS;
 /// Largest total turn |spin_rate|·duration_s (rad) of a listener: its disc's
 /// sweep is covered by one capsule per 0.1 rad, each tested per particle
 /// segment, so this caps the work at 1000 capsules per listener.
 pub const MAX_TURN_RAD: f64 = 100.0;
-/// Largest listener radius, as a fraction of the world's smaller side. The
-/// disc senses every particle inside it, so the work (and the number of
-/// particles one measurement sums) grows with its area; a disc a tenth of
-/// the world wide is already far from the paper's 0.5 m "microphone".
-pub const MAX_RADIUS_FRACTION: f64 = 0.1;
+/// Largest listener radius, as a fraction of the world's smaller side
+/// (checked by [`Scene::validate`]). The disc senses every particle inside
+/// it, so the work grows with its area.
+pub const MAX_RADIUS_FRACTION: f64 = chirpmap_core::scene::MAX_RADIUS_FRACTION;
 /// Longest run, in ticks (10⁷ ticks = 10⁴ s at 1 ms): a guard against typos, not a physical limit.
 const MAX_TICKS: f64 = 1e7;
 const PLACEMENT_TRIES: u32 = 10_000;
@@ -226,14 +224,8 @@ fn build_sampling(
 ///
 /// Errors name the offending field; nothing here panics on user data.
 pub fn resolve(scene: &Scene) -> Result<Resolved, SimError> {
-    for (name, v) in [("seed", scene.seed), ("run_index", scene.run_index)] {
-        if v > i64::MAX as u64 {
-            return Err(scene_err(format!(
-                "{name} must be at most {} (TOML integers are signed 64-bit, so scene.toml could not record it), got {v}",
-                i64::MAX
-            )));
-        }
-    }
+    // The one schema validation every command shares (issue 8, item 11).
+    scene.validate()?;
     let seeds = RunSeeds::new(scene.seed, scene.run_index);
     let a = positive("world.speed_of_sound", scene.world.speed_of_sound)?;
     let world = scene.world.bounds;
@@ -241,7 +233,7 @@ pub fn resolve(scene: &Scene) -> Result<Resolved, SimError> {
     let sweep = scene.chirp.build()?;
     let source = scene.source_position();
     if !source.is_finite() || !inside(&world, source) {
-        return Err(scene_err(format!("source.position {source:?} is not inside world.bounds {world:?}")));
+        return Err(scene_err(format!("source.position {source} is not inside world.bounds {world:?}")));
     }
     let p = &scene.particles;
     if p.per_tick == 0 || p.per_tick > MAX_PER_TICK {
@@ -290,7 +282,7 @@ pub fn resolve(scene: &Scene) -> Result<Resolved, SimError> {
         let field = format!("listeners[{i}]");
         let start = Point::new(l.start[0], l.start[1]);
         if !start.is_finite() || !inside(&world, start) {
-            return Err(scene_err(format!("{field}.start {:?} is outside world.bounds {world:?}", l.start)));
+            return Err(scene_err(format!("{field}.start {start} is outside world.bounds {world:?}")));
         }
         let speed = positive(&format!("{field}.speed"), l.speed)?;
         let radius_m = positive(&format!("{field}.radius"), l.radius)?;
@@ -328,6 +320,13 @@ pub fn resolve(scene: &Scene) -> Result<Resolved, SimError> {
         let mut rng = stream(seeds.sampling, i as u64);
         let budget = MAX_MEASUREMENTS - first;
         let ticks = build_sampling(&format!("{field}.sampling"), &l.sampling, tick_s, last_tick, budget, &mut rng)?;
+        if ticks.is_empty() {
+            return Err(scene_err(format!(
+                "{field} makes no measurement within the {} s run (its first comes one sampling period after the \
+                 start); lengthen duration_s or shorten {field}.sampling",
+                chirpmap_core::error::Num(run_s)
+            )));
+        }
         let capsules = trajectory.capsules(run_s, radius_m);
         let id = u32::try_from(i).map_err(|_| scene_err("too many listeners"))?;
         let n = ticks.len();
@@ -358,7 +357,7 @@ pub fn resolve(scene: &Scene) -> Result<Resolved, SimError> {
     };
     for (i, o) in obstacles.iter().enumerate() {
         if o.shape.contains(source) || o.shape.surface_distance(source) < 1e-9 {
-            return Err(scene_err(format!("obstacles[{i}] contains the source at {source:?}")));
+            return Err(scene_err(format!("obstacles[{i}] contains the source at {source}")));
         }
         for (k, l) in listeners.iter().enumerate() {
             if o.shape.contains(l.trajectory.start) {

@@ -66,7 +66,6 @@ fn measurements_are_capped_across_listeners() {
     // 2000 listeners × 6000 measurements = 1.2·10⁷: each is under a
     // per-listener cap of 10⁷ but the total overflows the budget.
     let mut s = Scene { duration_s: Some(6.0), ..Scene::default() };
-    s.random_obstacles.count = 0;
     s.listeners = (0..2000)
         .map(|i| ListenerSpec {
             start: [-40.0 + 0.01 * f64::from(i), 40.0],
@@ -122,4 +121,41 @@ fn listener_leaving_the_world_is_rejected_with_the_time() {
     s.listeners[0].speed = 10.0;
     s.listeners[0].spin_rate = std::f64::consts::FRAC_PI_4;
     resolve(&s).unwrap();
+}
+
+/// Issue 8, item 12: runs that cannot measure anything are refused before any
+/// work, by the same `Scene::validate` that every command calls.
+#[test]
+fn runs_that_cannot_measure_anything_are_refused() {
+    let cases = [
+        ("[particles]\ntick_ms = 1000.0\n", "particles.tick_ms"),
+        ("duration_s = 1e-9\n", "duration_s"),
+        ("[world]\nspeed_of_sound = 1e6\n", "world.speed_of_sound"),
+        ("[random_obstacles]\nregion = [100.0, 100.0, 200.0, 200.0]\n", "random_obstacles.region"),
+        ("[mapping]\ncell = 1e9\n", "mapping.cell"),
+        ("[random_obstacles]\ncount = 0\n", "random_obstacles.count"),
+        ("[source]\nposition = [1.0, 2.0, 3.0]\n", "expected an array of 2 numbers, got 3"),
+        ("[random_obstacles]\nroughness = nan\n[[obstacles]]\ncenter = [10.0, -20.0]\nradius = 2.0\n", "roughness"),
+    ];
+    for (toml, want) in cases {
+        let err = match Scene::from_toml_str(toml) {
+            Err(e) => e.to_string(),
+            Ok(s) => {
+                let shared = s.validate().unwrap_err().to_string();
+                let e = err_of(&s);
+                assert_eq!(e, shared, "resolve and Scene::validate disagree on {toml:?}");
+                e
+            }
+        };
+        assert!(err.contains(want), "{toml:?}: {err}");
+    }
+}
+
+/// A listener whose first measurement falls after the end of the run.
+#[test]
+fn a_listener_without_measurements_is_refused() {
+    let mut s = Scene { duration_s: Some(0.05), ..Scene::default() };
+    s.listeners[0].sampling = Sampling { period_ms: Some(100.0), random_ms: None };
+    let e = err_of(&s);
+    assert!(e.contains("listeners[0] makes no measurement"), "{e}");
 }
