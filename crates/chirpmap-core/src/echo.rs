@@ -17,6 +17,10 @@ pub struct Echo {
     pub t_s: f64,
     /// Listener id.
     pub listener_id: u32,
+    /// 1-σ uncertainty of `delta_d_m` (m), from the ranging method (issue 9,
+    /// item 1). `None`: the mapper's default applies (the evidence mapper's
+    /// `default_sigma_m`); Algorithm 1 ignores it.
+    pub sigma_m: Option<f64>,
 }
 
 impl Echo {
@@ -34,12 +38,36 @@ impl Echo {
         if weight < 0.0 {
             return Err(CoreError::InvalidParam { field: "weight", reason: format!("must be >= 0, got {weight}") });
         }
-        let echo = Self { source, listener, delta_d_m, weight, t_s, listener_id };
+        let echo = Self { source, listener, delta_d_m, weight, t_s, listener_id, sigma_m: None };
         echo.ellipse()?;
         Ok(echo)
     }
 
+    /// The same echo with a known 1-σ Δd uncertainty (m): finite and > 0.
+    pub fn with_sigma_m(self, sigma_m: f64) -> Result<Self, CoreError> {
+        finite("sigma", sigma_m)?;
+        if sigma_m <= 0.0 {
+            return Err(CoreError::InvalidParam { field: "sigma", reason: format!("must be > 0 m, got {sigma_m}") });
+        }
+        Ok(Self { sigma_m: Some(sigma_m), ..self })
+    }
+
     pub fn ellipse(&self) -> Result<Ellipse, CoreError> {
         Ellipse::new(self.source, self.listener, self.delta_d_m)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sigma_defaults_to_none_and_is_validated() {
+        let e = Echo::new(Point::new(0.0, 0.0), Point::new(1.0, 0.0), 0.5, 1.0, 0.0, 0).expect("valid echo");
+        assert_eq!(e.sigma_m, None);
+        assert_eq!(e.with_sigma_m(0.02).map(|e| e.sigma_m), Ok(Some(0.02)));
+        assert!(e.with_sigma_m(0.0).is_err());
+        assert!(e.with_sigma_m(-1.0).is_err());
+        assert!(e.with_sigma_m(f64::NAN).is_err());
     }
 }

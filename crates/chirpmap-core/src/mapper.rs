@@ -3,6 +3,7 @@
 
 use crate::echo::Echo;
 use crate::error::CoreError;
+use crate::evidence::EvidenceParams;
 use crate::geometry::Point;
 use crate::grid::{Grid, GridSpec};
 use crate::raster::for_each_entered_span;
@@ -27,11 +28,35 @@ pub struct MappingParams {
     /// "placed into the bins", so a cell gets one weight per point in it (and
     /// thin parts of a long ellipse may skip cells). For comparison runs.
     pub ellipse_points: u32,
+    /// Which mapper turns echoes into a map: `paper` (Algorithm 1, default, so
+    /// the paper's tables stay reproducible) or `evidence` (issue 9).
+    pub mapper: MapperKind,
+    /// The evidence mapper's parameters, the `[mapping.evidence]` table.
+    pub evidence: EvidenceParams,
+}
+
+/// The mapper selected by `[mapping] mapper = "..."`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum MapperKind {
+    /// Algorithm 1 of the paper ([`AccumulationMapper`]).
+    #[default]
+    Paper,
+    /// The evidence mapper ([`crate::evidence::map_evidence`]).
+    Evidence,
 }
 
 impl Default for MappingParams {
     fn default() -> Self {
-        Self { cell: 0.1, keep_top: 0.1, min_of_max: 0.01, peak_radius: 5.0, ellipse_points: 0 }
+        Self {
+            cell: 0.1,
+            keep_top: 0.1,
+            min_of_max: 0.01,
+            peak_radius: 5.0,
+            ellipse_points: 0,
+            mapper: MapperKind::Paper,
+            evidence: EvidenceParams::default(),
+        }
     }
 }
 
@@ -61,7 +86,7 @@ impl MappingParams {
                 reason: format!("must be at most {MAX_ELLIPSE_POINTS}, got {}", self.ellipse_points),
             });
         }
-        Ok(())
+        self.evidence.validate()
     }
 
     /// Window radius in cells, ⌊peak_radius / w⌋ as in Algorithm 1.
@@ -116,6 +141,11 @@ impl AccumulationMapper {
     /// Total cell updates so far (for benchmarks and progress reporting).
     pub fn cells_updated(&self) -> u64 {
         self.cells_updated
+    }
+
+    /// The accumulated grid, without copying it.
+    pub fn into_grid(self) -> Grid {
+        self.grid
     }
 
     fn accumulate(&mut self, echo: &Echo) -> Result<(), CoreError> {

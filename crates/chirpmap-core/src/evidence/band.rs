@@ -1,0 +1,124 @@
+//! Rasterising an echo's uncertainty band and its free interior.
+//!
+//! An echo with path difference Δd ± σ says the reflection point `p` has
+//! `|pS| + |pL| − (D + Δd)` distributed with standard deviation σ: the
+//! focal excess is the measured quantity itself, so the band is exactly the
+//! region between two confocal ellipses of Eq. 4, with Δd − kσ and Δd + kσ
+//! (issue 9, item 1). The free region of a measurement (item 2) is the
+//! interior of its first echo's inner ellipse. Both are unions of horizontal
+//! runs of cells, found row by row from the conic's roots, so the cost is
+//! rows plus cells (and rows only, for the interior, with a difference array).
+
+use crate::ellipse::Ellipse;
+use crate::error::CoreError;
+use crate::geometry::Point;
+use crate::grid::GridSpec;
+
+/// x-interval `[x_lo, x_hi]` (world, m) where the horizontal line at height
+/// `y` crosses the filled ellipse; `None` when it misses it or the ellipse
+/// has no area (Δd = 0).
+fn row_interval(e: &Ellipse, y: f64) -> Option<(f64, f64)> {
+    if e.semi_minor_m <= 0.0 {
+        return None;
+    }
+    let (qa, qb, qc, qf) = e.conic();
+    let yr = y - e.center.y;
+    // A X² + (B Y) X + (C Y² + F) = 0 in coordinates relative to the centre.
+    let (b1, c0) = (qb * yr, qc * yr * yr + qf);
+    let disc = b1 * b1 - 4.0 * qa * c0;
+    if disc < 0.0 || qa <= 0.0 {
+        return None;
+    }
+    let sq = disc.sqrt();
+    Some((e.center.x + (-b1 - sq) / (2.0 * qa), e.center.x + (-b1 + sq) / (2.0 * qa)))
+}
+
+/// Column range `[lo, hi]` of cells whose centres lie in `[x_lo, x_hi]`,
+/// clipped to the grid; `None` if empty.
+fn centre_cols(spec: &GridSpec, x_lo: f64, x_hi: f64) -> Option<(usize, usize)> {
+    let lo = ((x_lo - spec.x_min_m) / spec.cell_m - 0.5).ceil().max(0.0);
+    let hi = ((x_hi - spec.x_min_m) / spec.cell_m - 0.5).floor().min(spec.nx as f64 - 1.0);
+    (lo <= hi).then_some((lo as usize, hi as usize))
+}
+
+/// Rows `[lo, hi]` whose cell centres can meet the ellipse's bounding box.
+fn rows_of(e: &Ellipse, spec: &GridSpec) -> Option<(usize, usize)> {
+    let (lo, hi) = e.bbox();
+    let j_lo = ((lo.y - spec.y_min_m) / spec.cell_m - 0.5).ceil().max(0.0);
+    let j_hi = ((hi.y - spec.y_min_m) / spec.cell_m - 0.5).floor().min(spec.ny as f64 - 1.0);
+    (j_lo <= j_hi).then_some((j_lo as usize, j_hi as usize))
+}
+
+/// Calls `span(row, col_lo, col_hi)` (inclusive) for the cells whose centre
+/// `p` satisfies `D + dd_lo_m ≤ |pS| + |pL| ≤ D + dd_hi_m`: the band between
+/// the confocal ellipses of `dd_lo_m` and `dd_hi_m`. `dd_lo_m ≤ 0` means no
+/// inner ellipse (the filled outer ellipse). At most two spans per row, never
+/// overlapping. Errors on non-finite or invalid foci and on `dd_hi_m < 0`.
+pub fn for_each_band_span(
+    source: Point,
+    listener: Point,
+    dd_lo_m: f64,
+    dd_hi_m: f64,
+    spec: &GridSpec,
+    mut span: impl FnMut(usize, usize, usize),
+) -> Result<(), CoreError> {
+    let outer = Ellipse::new(source, listener, dd_hi_m)?;
+    let inner = if dd_lo_m > 0.0 && dd_lo_m < dd_hi_m { Some(Ellipse::new(source, listener, dd_lo_m)?) } else { None };
+    if dd_lo_m >= dd_hi_m && dd_lo_m > 0.0 {
+        return Ok(());
+    }
+    let Some((j_lo, j_hi)) = rows_of(&outer, spec) else { return Ok(()) };
+    for j in j_lo..=j_hi {
+        let y = spec.y_min_m + (j as f64 + 0.5) * spec.cell_m;
+        let Some((xo_lo, xo_hi)) = row_interval(&outer, y) else { continue };
+        match inner.as_ref().and_then(|e| row_interval(e, y)) {
+            None => {
+                if let Some((lo, hi)) = centre_cols(spec, xo_lo, xo_hi) {
+                    span(j, lo, hi);
+                }
+            }
+            Some((xi_lo, xi_hi)) => {
+                // Centres strictly inside the inner ellipse are excluded;
+                // those on it belong to the band.
+                if let Some((lo, hi)) = centre_cols(spec, xo_lo, xi_lo) {
+                    span(j, lo, hi);
+                }
+                if let Some((lo, hi)) = centre_cols(spec, xi_hi, xo_hi) {
+                    // A boundary cell shared by both halves (a degenerate
+                    // inner interval) is reported once.
+                    let lo_right = match centre_cols(spec, xo_lo, xi_lo) {
+                        Some((_, left_hi)) if left_hi >= lo => left_hi + 1,
+                        _ => lo,
+                    };
+                    if lo_right <= hi {
+                        span(j, lo_right, hi);
+                    }
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Naive oracle for [`for_each_band_span`]: tests every cell centre.
+pub fn band_cells_naive(
+    source: Point,
+    listener: Point,
+    dd_lo_m: f64,
+    dd_hi_m: f64,
+    spec: &GridSpec,
+    mut cell: impl FnMut(usize, usize),
+) {
+    let d = source.dist(listener);
+    for j in 0..spec.ny {
+        for i in 0..spec.nx {
+            let s = spec.cell_center(i, j);
+            let sum = s.dist(source) + s.dist(listener);
+            let inside_outer = sum <= d + dd_hi_m;
+            let outside_inner = dd_lo_m <= 0.0 || sum >= d + dd_lo_m;
+            if inside_outer && outside_inner {
+                cell(i, j);
+            }
+        }
+    }
+}

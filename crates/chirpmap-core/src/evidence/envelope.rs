@@ -1,0 +1,171 @@
+//! Compact reflectors from the envelope of consecutive ellipses.
+//!
+//! The ellipses of one reflector heard from neighbouring poses touch it at
+//! neighbouring points, so two of them cross next to the reflector (for a
+//! circle of radius r seen over an angle δ between the two touching points,
+//! r·δ²/8 outside it): the discrete envelope. Crossings of unrelated ellipses
+//! land anywhere, and crossings in carved free space are dropped. Envelope
+//! points that pile up within `point_radius_m`, from enough measurements,
+//! are a compact reflector.
+
+use super::{Ctx, Surface, SurfaceKind};
+use crate::ellipse::Ellipse;
+use crate::geometry::Point;
+use std::collections::HashMap;
+
+#[derive(Debug, Clone)]
+pub(crate) struct PointOut {
+    pub surface: Surface,
+    /// Echoes explained, each with its envelope point.
+    pub touches: Vec<(usize, Point)>,
+}
+
+/// Samples per ellipse when looking for crossings.
+const CROSSING_SAMPLES: usize = 96;
+
+/// Crossings of two ellipses: sign changes of `b`'s focal excess along `a`,
+/// refined by bisection in eccentric anomaly.
+pub(crate) fn crossings(a: &Ellipse, b: &Ellipse, out: &mut Vec<Point>) {
+    let step = std::f64::consts::TAU / CROSSING_SAMPLES as f64;
+    let g = |u: f64| b.focal_excess(a.point_at(u));
+    let mut u0 = 0.0;
+    let mut g0 = g(u0);
+    for s in 1..=CROSSING_SAMPLES {
+        let u1 = s as f64 * step;
+        let g1 = g(u1);
+        if (g0 < 0.0) != (g1 < 0.0) {
+            let (mut lo, mut hi, glo) = (u0, u1, g0);
+            for _ in 0..40 {
+                let mid = 0.5 * (lo + hi);
+                if (g(mid) < 0.0) == (glo < 0.0) {
+                    lo = mid;
+                } else {
+                    hi = mid;
+                }
+            }
+            out.push(a.point_at(0.5 * (lo + hi)));
+        }
+        u0 = u1;
+        g0 = g1;
+    }
+}
+
+/// One envelope point and the two echoes whose ellipses cross there.
+#[derive(Debug, Clone, Copy)]
+struct EnvPoint {
+    p: Point,
+    a: usize,
+    b: usize,
+}
+
+pub(crate) fn find_points(ctx: &Ctx, skip: &[bool], max_points: usize) -> Vec<PointOut> {
+    let p = ctx.params;
+    let mut env: Vec<EnvPoint> = Vec::new();
+    let mut buf = Vec::new();
+    for (mi, m) in ctx.meas.iter().enumerate() {
+        // The next pose of the same listener at least the baseline away
+        // (within a few poses).
+        let Some(next) = ctx.meas[mi + 1..]
+            .iter()
+            .take(8)
+            .take_while(|n| n.listener_id == m.listener_id)
+            .find(|n| n.listener.dist(m.listener) + n.source.dist(m.source) >= p.envelope_baseline_m)
+        else {
+            continue;
+        };
+        let moved = 2.0 * (next.listener.dist(m.listener) + next.source.dist(m.source));
+        for &ka in &m.echoes {
+            if skip[ka] {
+                continue;
+            }
+            let ea = &ctx.preps[ka];
+            for &kb in &next.echoes {
+                if skip[kb] {
+                    continue;
+                }
+                let eb = &ctx.preps[kb];
+                let slack = moved + p.band_sigmas * (ea.sigma_m + eb.sigma_m);
+                if (ea.ellipse.delta_d_m - eb.ellipse.delta_d_m).abs() > slack {
+                    continue;
+                }
+                buf.clear();
+                crossings(&ea.ellipse, &eb.ellipse, &mut buf);
+                for &q in &buf {
+                    if ctx.spec.cell_of(q).is_some() && !ctx.is_free(q) {
+                        env.push(EnvPoint { p: q, a: ka, b: kb });
+                    }
+                }
+            }
+        }
+    }
+    if env.is_empty() {
+        return Vec::new();
+    }
+    // Density: envelope points within the cluster radius (spatial hash).
+    let r = p.point_radius_m;
+    let key = |q: Point| ((q.x / r).floor() as i64, (q.y / r).floor() as i64);
+    let mut hash: HashMap<(i64, i64), Vec<usize>> = HashMap::new();
+    for (i, e) in env.iter().enumerate() {
+        hash.entry(key(e.p)).or_default().push(i);
+    }
+    let neighbours = |i: usize| -> Vec<usize> {
+        let (kx, ky) = key(env[i].p);
+        let mut v = Vec::new();
+        for dx in -1..=1 {
+            for dy in -1..=1 {
+                if let Some(list) = hash.get(&(kx + dx, ky + dy)) {
+                    v.extend(list.iter().copied().filter(|&j| env[j].p.dist(env[i].p) <= r));
+                }
+            }
+        }
+        v
+    };
+    let density: Vec<usize> = (0..env.len()).map(|i| neighbours(i).len()).collect();
+    let mut order: Vec<usize> = (0..env.len()).collect();
+    order.sort_by(|&a, &b| density[b].cmp(&density[a]).then(a.cmp(&b)));
+    let mut taken = vec![false; env.len()];
+    let mut echo_used = vec![false; ctx.preps.len()];
+    let mut out = Vec::new();
+    for seed in order {
+        if out.len() >= max_points || density[seed] < p.min_support as usize {
+            break;
+        }
+        if taken[seed] {
+            continue;
+        }
+        let members: Vec<usize> = neighbours(seed).into_iter().filter(|&j| !taken[j]).collect();
+        // Support: distinct measurements among the members' echoes.
+        let mut touches: Vec<(usize, Point)> = Vec::new();
+        let mut meas_seen = std::collections::BTreeSet::new();
+        for &j in &members {
+            for k in [env[j].a, env[j].b] {
+                if !echo_used[k] && !touches.iter().any(|&(t, _)| t == k) {
+                    touches.push((k, env[j].p));
+                    meas_seen.insert(ctx.preps[k].meas);
+                }
+            }
+        }
+        for &j in &members {
+            taken[j] = true;
+        }
+        if meas_seen.len() < p.min_support as usize {
+            continue;
+        }
+        for &(k, _) in &touches {
+            echo_used[k] = true;
+        }
+        let ks: Vec<usize> = touches.iter().map(|&(k, _)| k).collect();
+        let at = env[seed].p;
+        out.push(PointOut {
+            surface: Surface {
+                kind: SurfaceKind::Point,
+                p0: at,
+                p1: at,
+                support: meas_seen.len(),
+                ambiguous: ctx.collinear(&ks),
+            },
+            touches,
+        });
+    }
+    out
+}

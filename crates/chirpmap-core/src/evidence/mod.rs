@@ -1,0 +1,537 @@
+//! The evidence mapper (issue 9): a second mapper beside Algorithm 1 that uses
+//! what the echoes say and Algorithm 1 throws away. Design and sources in
+//! `docs/evidence-mapper.md`.
+//!
+//! 1. **Uncertainty.** Each echo is a band of confocal ellipses Δd ± kσ
+//!    ([`band`]), σ from [`Echo::sigma_m`] or [`EvidenceParams::default_sigma_m`].
+//! 2. **Free space.** Within one measurement (same `t_s` and `listener_id`) no
+//!    reflector lies inside the first (smallest Δd) echo's ellipse: carved in
+//!    log-odds, softly, as the sonar occupancy grid of Moravec and Elfes
+//!    (1985) and Elfes (1989) carves a beam's "everywhere empty" region.
+//! 3. **Tangency.** Walls are lines tangent to the ellipses of many
+//!    consecutive poses: a Hough vote in (normal angle, offset) with the
+//!    closed-form tangents of [`tangent`] (the common-tangent view of room
+//!    geometry inference, Antonacci et al. 2012), refined by least squares.
+//!    Compact reflectors (pillars, poles) come from the envelope of the
+//!    ellipses of consecutive poses ([`envelope`]).
+//! 4. **Ghosts.** A line candidate that lies mostly in carved free space, or
+//!    whose tangency points lie behind a stronger line as seen from the
+//!    source or listener (a corner's second-order echo draws such a virtual
+//!    wall through the corner), is rejected; surfaces whose echoes come from
+//!    collinear foci (a straight pass in line with the source) are flagged
+//!    `ambiguous`: their mirror image across that line explains the same echoes.
+
+pub mod band;
+mod envelope;
+mod lines;
+pub mod tangent;
+
+use crate::echo::Echo;
+use crate::ellipse::Ellipse;
+use crate::error::CoreError;
+use crate::geometry::Point;
+use crate::grid::{Grid, GridSpec};
+use crate::mapper::{Highlight, local_maxima};
+use serde::{Deserialize, Serialize};
+
+pub use band::{band_cells_naive, for_each_band_span};
+pub use tangent::far_tangent;
+
+/// Parameters of the evidence mapper, the `[mapping.evidence]` table of a
+/// scene; every field has a default.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EvidenceParams {
+    /// 1-σ Δd uncertainty (m) for echoes without their own `sigma_m`.
+    pub default_sigma_m: f64,
+    /// Half-width of an echo's band in σ (k): the band is Δd ± kσ.
+    pub band_sigmas: f64,
+    /// Log-odds added to a cell inside a measurement's first ellipse (< 0).
+    pub free_logodds: f64,
+    /// Log-odds added per echo at its reflection point once a surface
+    /// explains it (> 0).
+    pub hit_logodds: f64,
+    /// Log-odds added along the band of an echo no surface explains (≥ 0),
+    /// Gaussian in the focal excess: clutter stays faint.
+    pub ring_logodds: f64,
+    /// Number of normal-angle bins over the full circle of the Hough vote.
+    pub angle_bins: u32,
+    /// Smallest number of echoes (from runs of consecutive poses) a surface
+    /// must explain.
+    pub min_support: u32,
+    /// A pose counts toward a surface only inside a run of at least this
+    /// many consecutive poses (of one listener) tangent to it.
+    pub min_run: u32,
+    /// Shortest reported line segment (m); shorter tangency clusters are
+    /// compact reflectors, not walls.
+    pub min_line_length_m: f64,
+    /// A line whose samples are more than this fraction in free space, or
+    /// whose tangency points are more than this fraction hidden behind a
+    /// stronger line, is a ghost.
+    pub ghost_fraction: f64,
+    /// Foci within this distance (m) of one straight line make a surface
+    /// mirror-ambiguous.
+    pub collinear_tol_m: f64,
+    /// Consecutive poses are paired for the envelope once the listener has
+    /// moved at least this far (m).
+    pub envelope_baseline_m: f64,
+    /// Cluster radius of envelope points for a compact reflector (m).
+    pub point_radius_m: f64,
+    /// Highlights are maxima of the map within this radius (m).
+    pub peak_radius_m: f64,
+    /// Cells below this log-odds are never highlights.
+    pub highlight_min_logodds: f64,
+    /// At most this many surfaces are reported.
+    pub max_surfaces: u32,
+}
+
+impl Default for EvidenceParams {
+    fn default() -> Self {
+        Self {
+            default_sigma_m: 0.02,
+            band_sigmas: 3.0,
+            free_logodds: -0.4,
+            hit_logodds: 0.85,
+            ring_logodds: 0.05,
+            angle_bins: 360,
+            min_support: 5,
+            min_run: 3,
+            min_line_length_m: 0.5,
+            ghost_fraction: 0.5,
+            collinear_tol_m: 0.05,
+            envelope_baseline_m: 0.05,
+            point_radius_m: 0.3,
+            peak_radius_m: 0.5,
+            highlight_min_logodds: 1.5,
+            max_surfaces: 64,
+        }
+    }
+}
+
+impl EvidenceParams {
+    /// Checks every field's range; the error names the field.
+    pub fn validate(&self) -> Result<(), CoreError> {
+        fn bad(field: &'static str, reason: &str) -> Result<(), CoreError> {
+            Err(CoreError::InvalidParam { field, reason: reason.into() })
+        }
+        let pos = |v: f64| v.is_finite() && v > 0.0;
+        if !pos(self.default_sigma_m) {
+            return bad("evidence.default_sigma_m", "must be finite and > 0");
+        }
+        if !(self.band_sigmas.is_finite() && self.band_sigmas >= 0.5 && self.band_sigmas <= 10.0) {
+            return bad("evidence.band_sigmas", "must be in [0.5, 10]");
+        }
+        if !(self.free_logodds.is_finite() && self.free_logodds < 0.0) {
+            return bad("evidence.free_logodds", "must be finite and < 0");
+        }
+        if !pos(self.hit_logodds) {
+            return bad("evidence.hit_logodds", "must be finite and > 0");
+        }
+        if !(self.ring_logodds.is_finite() && self.ring_logodds >= 0.0) {
+            return bad("evidence.ring_logodds", "must be finite and >= 0");
+        }
+        if !(8..=7200).contains(&self.angle_bins) {
+            return bad("evidence.angle_bins", "must be in [8, 7200]");
+        }
+        if self.min_support < 2 {
+            return bad("evidence.min_support", "must be >= 2");
+        }
+        if self.min_run < 1 {
+            return bad("evidence.min_run", "must be >= 1");
+        }
+        if !(self.min_line_length_m.is_finite() && self.min_line_length_m >= 0.0) {
+            return bad("evidence.min_line_length_m", "must be finite and >= 0");
+        }
+        if !(self.ghost_fraction > 0.0 && self.ghost_fraction <= 1.0) {
+            return bad("evidence.ghost_fraction", "must be in (0, 1]");
+        }
+        for (field, v) in [
+            ("evidence.collinear_tol_m", self.collinear_tol_m),
+            ("evidence.envelope_baseline_m", self.envelope_baseline_m),
+            ("evidence.point_radius_m", self.point_radius_m),
+            ("evidence.peak_radius_m", self.peak_radius_m),
+        ] {
+            if !(v.is_finite() && v >= 0.0 && v <= 1e3) {
+                return bad(field, "must be finite and in [0, 1000] m");
+            }
+        }
+        if self.point_radius_m <= 0.0 {
+            return bad("evidence.point_radius_m", "must be > 0");
+        }
+        if !self.highlight_min_logodds.is_finite() {
+            return bad("evidence.highlight_min_logodds", "must be finite");
+        }
+        if self.max_surfaces == 0 || self.max_surfaces > 100_000 {
+            return bad("evidence.max_surfaces", "must be in [1, 100000]");
+        }
+        Ok(())
+    }
+}
+
+/// What a surface is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SurfaceKind {
+    /// A straight reflector (wall): the segment `p0`–`p1` spans the observed
+    /// tangency points.
+    Line,
+    /// A compact reflector (pillar, pole, the paper's circles): `p0` is the
+    /// densest envelope point, which lies on its surface.
+    Point,
+}
+
+/// One reflecting surface found by the evidence mapper.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Surface {
+    pub kind: SurfaceKind,
+    /// Segment start (line) or the point (point), world frame (m).
+    pub p0: Point,
+    /// Segment end; equal to `p0` for a point.
+    pub p1: Point,
+    /// Number of echoes this surface explains.
+    pub support: usize,
+    /// The echoes' foci are collinear, so the mirror image of this surface
+    /// across their line explains the same echoes (issue 9, item 4).
+    pub ambiguous: bool,
+}
+
+impl Surface {
+    /// Distance (m) from `p` to the surface (segment or point).
+    pub fn distance(&self, p: Point) -> f64 {
+        crate::geometry::point_segment_distance(p, self.p0, self.p1)
+    }
+}
+
+/// Result of [`map_evidence`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct EvidenceMap {
+    /// Final map in **log-odds of occupancy** (natural log, 0 = unknown,
+    /// p = 1/(1 + e^−L)): free-space carving (< 0), plus `hit_logodds` per
+    /// explained echo at its reflection point, plus faint rings of echoes no
+    /// surface explains.
+    pub grid: Grid,
+    /// Surfaces, strongest (largest support) first.
+    pub surfaces: Vec<Surface>,
+    /// Local maxima of `grid` above `highlight_min_logodds` within
+    /// `peak_radius_m`, in raster order: the input of the paper's scores.
+    pub highlights: Vec<Highlight>,
+    /// Grid cell writes (carving, rings, deposits), for benchmarks.
+    pub cells_updated: u64,
+}
+
+/// One echo, prepared.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Prep {
+    pub ellipse: Ellipse,
+    pub sigma_m: f64,
+    /// Index into the measurement list.
+    pub meas: usize,
+}
+
+/// One measurement: the echoes heard by one listener at one instant.
+#[derive(Debug, Clone)]
+pub(crate) struct Meas {
+    pub listener_id: u32,
+    /// Position in this listener's time order.
+    pub seq: usize,
+    pub listener: Point,
+    pub source: Point,
+    pub echoes: Vec<usize>,
+}
+
+/// Shared inputs of the steps.
+pub(crate) struct Ctx<'a> {
+    pub preps: Vec<Prep>,
+    pub meas: Vec<Meas>,
+    pub spec: GridSpec,
+    pub params: &'a EvidenceParams,
+    /// Carved free-space log-odds, row-major like the grid.
+    pub free: Vec<f64>,
+}
+
+impl Ctx<'_> {
+    /// Free-space log-odds at `p` (0 outside the grid).
+    pub fn free_at(&self, p: Point) -> f64 {
+        self.spec.cell_of(p).map_or(0.0, |(i, j)| self.free[j * self.spec.nx + i])
+    }
+    /// Whether at least two measurements carved `p` free.
+    pub fn is_free(&self, p: Point) -> bool {
+        self.free_at(p) <= 2.0 * self.params.free_logodds + 1e-12
+    }
+
+    /// Whether the foci of `echoes` are collinear within `collinear_tol_m`:
+    /// listeners when all sources coincide, sources when all listeners do,
+    /// all foci otherwise.
+    pub fn collinear(&self, echoes: &[usize]) -> bool {
+        let tol = self.params.collinear_tol_m;
+        let srcs: Vec<Point> = echoes.iter().map(|&k| self.preps[k].ellipse.focus_a).collect();
+        let lsts: Vec<Point> = echoes.iter().map(|&k| self.preps[k].ellipse.focus_b).collect();
+        let spread = |ps: &[Point]| ps.iter().map(|p| p.dist(ps[0])).fold(0.0, f64::max);
+        if srcs.is_empty() {
+            return false;
+        }
+        let pts: Vec<Point> = if spread(&srcs) <= tol {
+            lsts
+        } else if spread(&lsts) <= tol {
+            srcs
+        } else {
+            srcs.into_iter().chain(lsts).collect()
+        };
+        max_line_deviation(&pts) <= tol
+    }
+}
+
+/// Largest distance (m) of `pts` from their principal-axis line.
+pub(crate) fn max_line_deviation(pts: &[Point]) -> f64 {
+    if pts.len() < 3 {
+        return 0.0;
+    }
+    let n = pts.len() as f64;
+    let c = pts.iter().fold(Point::new(0.0, 0.0), |a, &p| a + p) * (1.0 / n);
+    let (mut sxx, mut sxy, mut syy) = (0.0, 0.0, 0.0);
+    for p in pts {
+        let d = *p - c;
+        sxx += d.x * d.x;
+        sxy += d.x * d.y;
+        syy += d.y * d.y;
+    }
+    let angle = 0.5 * (2.0 * sxy).atan2(sxx - syy);
+    let normal = Point::new(-angle.sin(), angle.cos());
+    pts.iter().map(|p| (*p - c).dot(normal).abs()).fold(0.0, f64::max)
+}
+
+/// Maps `echoes` on the grid `spec` (issue 9): free space, surfaces (lines
+/// and compact reflectors, ghosts rejected, mirror ambiguity flagged), the
+/// final log-odds map and its highlights. Errors on invalid parameters,
+/// echoes or an empty grid; never panics on input.
+pub fn map_evidence(echoes: &[Echo], spec: GridSpec, params: &EvidenceParams) -> Result<EvidenceMap, CoreError> {
+    params.validate()?;
+    if spec.nx == 0 || spec.ny == 0 || !(spec.cell_m.is_finite() && spec.cell_m > 0.0) {
+        return Err(CoreError::InvalidGrid("the evidence mapper needs a non-empty grid with cell > 0".into()));
+    }
+    if !(spec.x_min_m.is_finite() && spec.y_min_m.is_finite()) {
+        return Err(CoreError::InvalidGrid("grid origin must be finite".into()));
+    }
+    let mut ctx = prepare(echoes, spec, params)?;
+    let mut cells_updated = carve_free(&mut ctx)?;
+
+    // Walls, then compact reflectors from the echoes no wall explains.
+    let lines = lines::find_lines(&ctx);
+    let mut explained: Vec<Option<usize>> = vec![None; ctx.preps.len()];
+    let mut ghost_echo = vec![false; ctx.preps.len()];
+    let mut surfaces: Vec<(Surface, Vec<(usize, Point)>)> = Vec::new();
+    for l in &lines.accepted {
+        for &(k, _) in &l.touches {
+            explained[k] = Some(surfaces.len());
+        }
+        surfaces.push((l.surface, l.touches.clone()));
+    }
+    for &k in &lines.ghost_echoes {
+        if explained[k].is_none() {
+            ghost_echo[k] = true;
+        }
+    }
+    let skip: Vec<bool> = explained.iter().zip(&ghost_echo).map(|(e, g)| e.is_some() || *g).collect();
+    let max_points = (params.max_surfaces as usize).saturating_sub(surfaces.len());
+    for p in envelope::find_points(&ctx, &skip, max_points) {
+        for &(k, _) in &p.touches {
+            if explained[k].is_none() {
+                explained[k] = Some(surfaces.len());
+            }
+        }
+        surfaces.push((p.surface, p.touches));
+    }
+
+    // Final map: carving + hits at reflection points + faint unexplained rings.
+    let mut grid = Grid { spec, data: std::mem::take(&mut ctx.free) };
+    for (_, touches) in &surfaces {
+        for &(_, p) in touches {
+            if let Some((i, j)) = spec.cell_of(p) {
+                grid.data[j * spec.nx + i] += params.hit_logodds;
+                cells_updated += 1;
+            }
+        }
+    }
+    if params.ring_logodds > 0.0 {
+        for (k, prep) in ctx.preps.iter().enumerate() {
+            if explained[k].is_some() || ghost_echo[k] {
+                continue;
+            }
+            cells_updated += deposit_ring(&mut grid, prep, params)?;
+        }
+    }
+
+    let mut kept = grid.clone();
+    for v in &mut kept.data {
+        if *v < params.highlight_min_logodds || *v <= 0.0 {
+            *v = 0.0;
+        }
+    }
+    let r_cells = (params.peak_radius_m / spec.cell_m + 1e-9).floor().min(1e6) as usize;
+    let highlights = local_maxima(&kept, r_cells);
+
+    let mut surfaces: Vec<Surface> = surfaces.into_iter().map(|(s, _)| s).collect();
+    surfaces.sort_by(|a, b| b.support.cmp(&a.support));
+    surfaces.truncate(params.max_surfaces as usize);
+    Ok(EvidenceMap { grid, surfaces, highlights, cells_updated })
+}
+
+/// Validates echoes and groups them into measurements.
+fn prepare<'a>(echoes: &[Echo], spec: GridSpec, params: &'a EvidenceParams) -> Result<Ctx<'a>, CoreError> {
+    let mut preps = Vec::with_capacity(echoes.len());
+    for e in echoes {
+        let sigma_m = match e.sigma_m {
+            Some(s) if s.is_finite() && s > 0.0 => s,
+            Some(s) => {
+                return Err(CoreError::InvalidParam {
+                    field: "sigma",
+                    reason: format!("must be finite and > 0, got {s}"),
+                });
+            }
+            None => params.default_sigma_m,
+        };
+        if !e.t_s.is_finite() {
+            return Err(CoreError::NotFinite { field: "t", value: e.t_s });
+        }
+        preps.push(Prep { ellipse: e.ellipse()?, sigma_m, meas: 0 });
+    }
+    // Measurements: same listener id and time, in (listener, time) order.
+    let mut order: Vec<usize> = (0..echoes.len()).collect();
+    order.sort_by(|&a, &b| {
+        echoes[a].listener_id.cmp(&echoes[b].listener_id).then(echoes[a].t_s.total_cmp(&echoes[b].t_s))
+    });
+    let mut meas: Vec<Meas> = Vec::new();
+    for k in order {
+        let e = &echoes[k];
+        let same = meas.last().is_some_and(|m: &Meas| {
+            let first = &echoes[m.echoes[0]];
+            m.listener_id == e.listener_id && first.t_s == e.t_s
+        });
+        if !same {
+            let seq = match meas.last() {
+                Some(m) if m.listener_id == e.listener_id => m.seq + 1,
+                _ => 0,
+            };
+            meas.push(Meas {
+                listener_id: e.listener_id,
+                seq,
+                listener: e.listener,
+                source: e.source,
+                echoes: Vec::new(),
+            });
+        }
+        let m = meas.len() - 1;
+        meas[m].echoes.push(k);
+        preps[k].meas = m;
+    }
+    Ok(Ctx { preps, meas, spec, params, free: vec![0.0; spec.len()] })
+}
+
+/// Carves each measurement's first ellipse, shrunk by kσ plus a cell's
+/// half-diagonal (in focal excess, ≤ 2 per metre) so that a cell is carved
+/// only when all of it is inside. Row spans go into a difference array, so
+/// the cost is one entry per row, not per cell. Returns cells carved.
+fn carve_free(ctx: &mut Ctx) -> Result<u64, CoreError> {
+    let spec = ctx.spec;
+    let nx = spec.nx;
+    let mut diff = vec![0.0; (nx + 1) * spec.ny];
+    let mut carved = 0u64;
+    let l_free = ctx.params.free_logodds;
+    for m in &ctx.meas {
+        let Some(&first) = m
+            .echoes
+            .iter()
+            .min_by(|&&a, &&b| ctx.preps[a].ellipse.delta_d_m.total_cmp(&ctx.preps[b].ellipse.delta_d_m))
+        else {
+            continue;
+        };
+        let p = &ctx.preps[first];
+        let margin = ctx.params.band_sigmas * p.sigma_m + 2.0 * std::f64::consts::FRAC_1_SQRT_2 * spec.cell_m;
+        let dd_free = p.ellipse.delta_d_m - margin;
+        if dd_free <= 0.0 {
+            continue;
+        }
+        for_each_band_span(p.ellipse.focus_a, p.ellipse.focus_b, 0.0, dd_free, &spec, |j, lo, hi| {
+            diff[j * (nx + 1) + lo] += l_free;
+            diff[j * (nx + 1) + hi + 1] -= l_free;
+            carved += (hi - lo + 1) as u64;
+        })?;
+    }
+    for j in 0..spec.ny {
+        let mut acc = 0.0;
+        for i in 0..nx {
+            acc += diff[j * (nx + 1) + i];
+            ctx.free[j * nx + i] = acc;
+        }
+    }
+    Ok(carved)
+}
+
+/// Adds the faint Gaussian ring of an unexplained echo. Returns cells written.
+fn deposit_ring(grid: &mut Grid, prep: &Prep, params: &EvidenceParams) -> Result<u64, CoreError> {
+    let e = &prep.ellipse;
+    let half = params.band_sigmas * prep.sigma_m;
+    let spec = grid.spec;
+    let inv2s2 = 1.0 / (2.0 * prep.sigma_m * prep.sigma_m);
+    let mut n = 0u64;
+    let (lo_dd, hi_dd) = (e.delta_d_m - half, e.delta_d_m + half);
+    for_each_band_span(e.focus_a, e.focus_b, lo_dd, hi_dd, &spec, |j, lo, hi| {
+        for i in lo..=hi {
+            let f = e.focal_excess(spec.cell_center(i, j));
+            grid.data[j * spec.nx + i] += params.ring_logodds * (-f * f * inv2s2).exp();
+        }
+        n += (hi - lo + 1) as u64;
+    })?;
+    Ok(n)
+}
+
+/// Converts log-odds to occupancy probability.
+pub fn logodds_to_probability(l: f64) -> f64 {
+    1.0 / (1.0 + (-l).exp())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn params_default_valid_and_bad_rejected() {
+        assert!(EvidenceParams::default().validate().is_ok());
+        let bad = [
+            EvidenceParams { default_sigma_m: 0.0, ..Default::default() },
+            EvidenceParams { free_logodds: 0.1, ..Default::default() },
+            EvidenceParams { angle_bins: 2, ..Default::default() },
+            EvidenceParams { ghost_fraction: f64::NAN, ..Default::default() },
+            EvidenceParams { point_radius_m: 0.0, ..Default::default() },
+        ];
+        for p in bad {
+            assert!(p.validate().is_err(), "{p:?}");
+        }
+    }
+
+    #[test]
+    fn params_parse_from_toml_with_defaults_and_reject_unknown() {
+        let p: EvidenceParams = toml::from_str("default_sigma_m = 0.05").expect("valid toml");
+        assert_eq!(p.default_sigma_m, 0.05);
+        assert_eq!(p.angle_bins, EvidenceParams::default().angle_bins);
+        assert!(toml::from_str::<EvidenceParams>("nonsense = 1").is_err());
+    }
+
+    #[test]
+    fn collinearity() {
+        let pts: Vec<Point> = (0..5).map(|k| Point::new(k as f64, 2.0 * k as f64 + 1.0)).collect();
+        assert!(max_line_deviation(&pts) < 1e-9);
+        let mut bent = pts.clone();
+        bent.push(Point::new(0.0, 3.0));
+        assert!(max_line_deviation(&bent) > 0.5);
+    }
+
+    #[test]
+    fn empty_input_gives_empty_map() {
+        let spec = GridSpec { x_min_m: 0.0, y_min_m: 0.0, cell_m: 0.1, nx: 10, ny: 10 };
+        let m = map_evidence(&[], spec, &EvidenceParams::default()).expect("empty is fine");
+        assert!(m.surfaces.is_empty() && m.highlights.is_empty());
+        let bad = GridSpec { nx: 0, ..spec };
+        assert!(map_evidence(&[], bad, &EvidenceParams::default()).is_err());
+    }
+}
