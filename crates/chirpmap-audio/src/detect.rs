@@ -46,7 +46,34 @@ impl ChirpTemplate {
                 ),
             });
         }
-        let n = (chirp.duration_s() * sample_rate_hz).round() as usize;
+        if !(sample_rate_hz.is_finite()
+            && sample_rate_hz > 0.0
+            && sample_rate_hz <= crate::wav::MAX_SAMPLE_RATE_HZ as f64)
+        {
+            return Err(AudioError::InvalidParam {
+                field: "sample rate",
+                reason: format!(
+                    "must be in 1..={} Hz, got {}",
+                    crate::wav::MAX_SAMPLE_RATE_HZ,
+                    chirpmap_core::error::Num(sample_rate_hz)
+                ),
+            });
+        }
+        let n_f = (chirp.duration_s() * sample_rate_hz).round();
+        // Real (4 bytes) and mix (8 bytes) per sample, checked before allocating:
+        // `--duration 1e5` asked for 57 GB (issue 8, item 8).
+        crate::error::check_memory(
+            || {
+                format!(
+                    "a {} s chirp template at {} Hz",
+                    chirpmap_core::error::Num(chirp.duration_s()),
+                    chirpmap_core::error::Num(sample_rate_hz)
+                )
+            },
+            (n_f * 12.0) as u128,
+            "check --duration (the chirp's length in seconds)",
+        )?;
+        let n = n_f as usize;
         if n < MIN_TEMPLATE_SAMPLES {
             return Err(AudioError::InvalidParam {
                 field: "chirp duration",

@@ -16,7 +16,12 @@
 use crate::detect::{ChirpTemplate, Detection};
 use crate::error::AudioError;
 use crate::ranging::{Method, RangeLimits, Ranger};
+use chirpmap_core::error::Num;
 use chirpmap_core::{Echo, Point};
+
+/// Most measurements (frames) one extraction makes: the same cap as the
+/// simulator's 10⁷ measurements (`chirpmap_sim::resolve::MAX_MEASUREMENTS`).
+pub const MAX_MEASUREMENTS: usize = 10_000_000;
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FrameParams {
@@ -41,9 +46,40 @@ pub fn extract_echoes(
     p: &FrameParams,
 ) -> Result<Vec<Echo>, AudioError> {
     if !(p.period_s > 0.0 && p.period_s.is_finite()) {
-        return Err(AudioError::InvalidParam { field: "period", reason: format!("must be > 0, got {}", p.period_s) });
+        return Err(AudioError::InvalidParam {
+            field: "period",
+            reason: format!("must be finite and > 0, got {}", Num(p.period_s)),
+        });
     }
     let fs = tpl.sample_rate_hz;
+    // Bound the work before any of it (issue 8, item 10: `--period-ms 1e-9`
+    // ran for hours): a period shorter than a sample repeats frames, and the
+    // number of measurements is capped.
+    if p.period_s * fs < 1.0 {
+        return Err(AudioError::InvalidParam {
+            field: "period",
+            reason: format!(
+                "{} ms is shorter than one sample ({} ms at {} Hz)",
+                Num(p.period_s * 1e3),
+                Num(1e3 / fs),
+                Num(fs)
+            ),
+        });
+    }
+    let per_chirp = (tpl.len() as f64 / (p.period_s * fs)).ceil() + 1.0;
+    let planned = per_chirp * detections.len() as f64;
+    if planned > MAX_MEASUREMENTS as f64 {
+        return Err(AudioError::InvalidParam {
+            field: "period",
+            reason: format!(
+                "{} ms gives about {} measurements over {} chirp(s), more than the cap of {MAX_MEASUREMENTS}; \
+                 use a longer period",
+                Num(p.period_s * 1e3),
+                Num(planned),
+                detections.len()
+            ),
+        });
+    }
     let a = lim.speed_of_sound_mps;
     let gap_len = Ranger::gap_frame_len(tpl);
     let frame = match (p.frame_s, p.method) {

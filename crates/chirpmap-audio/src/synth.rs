@@ -17,9 +17,13 @@
 use crate::detect::taper_gain;
 use crate::error::AudioError;
 use crate::wav::SampleFormat;
+use chirpmap_core::error::Num;
 use chirpmap_core::geometry::specular_point_on_circle;
 use chirpmap_core::scene::ListenerSpec;
 use chirpmap_core::{Obstacle, Point, Scene, Shape};
+
+/// Most chirps one rendering plays (the paper plays 50).
+pub const MAX_CHIRPS: usize = 1_000_000;
 use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
 use serde::{Deserialize, Serialize};
@@ -77,27 +81,28 @@ impl SynthConfig {
     pub fn format(&self) -> Result<SampleFormat, AudioError> {
         SampleFormat::parse(&self.bits)
     }
-    fn validate(&self) -> Result<(), AudioError> {
+    /// Every field finite and within its range (errors name the field).
+    pub fn validate(&self) -> Result<(), AudioError> {
         let bad = |field: &'static str, reason: String| Err(AudioError::InvalidParam { field, reason });
-        if self.chirps == 0 {
-            return bad("synth.chirps", "must be >= 1".into());
+        if self.chirps == 0 || self.chirps > MAX_CHIRPS {
+            return bad("synth.chirps", format!("must be in 1..={MAX_CHIRPS}, got {}", self.chirps));
         }
         for (f, v) in [("synth.gap_s", self.gap_s), ("synth.start_s", self.start_s), ("synth.tail_s", self.tail_s)] {
             if !(v.is_finite() && v >= 0.0) {
-                return bad(f, format!("must be finite and >= 0, got {v}"));
+                return bad(f, format!("must be finite and >= 0, got {}", Num(v)));
             }
         }
         if !(self.taper_s.is_finite() && self.taper_s >= 0.0) {
-            return bad("synth.taper_s", format!("must be >= 0, got {}", self.taper_s));
+            return bad("synth.taper_s", format!("must be finite and >= 0, got {}", Num(self.taper_s)));
         }
         if !(8_000..=768_000).contains(&self.sample_rate_hz) {
             return bad("synth.sample_rate_hz", format!("must be in 8000..=768000, got {}", self.sample_rate_hz));
         }
         if !(self.peak > 0.0 && self.peak <= 1.0) {
-            return bad("synth.peak", format!("must be in (0, 1], got {}", self.peak));
+            return bad("synth.peak", format!("must be in (0, 1], got {}", Num(self.peak)));
         }
         if !(self.pose_period_s > 0.0 && self.pose_period_s.is_finite()) {
-            return bad("synth.pose_period_s", format!("must be > 0, got {}", self.pose_period_s));
+            return bad("synth.pose_period_s", format!("must be finite and > 0, got {}", Num(self.pose_period_s)));
         }
         if let Some(s) = self.snr_db
             && !s.is_finite()
@@ -108,16 +113,51 @@ impl SynthConfig {
     }
 }
 
-/// Splits a scene file into the core scene and the `[synth]` table.
+/// Splits a scene file into the core scene and the `[synth]` table, and
+/// validates both: the scene by the one validation every command shares
+/// ([`Scene::validate`]; issue 8, item 11: `synth` used to accept NaN and
+/// infinities that `simulate` refused), the table by its own bounds. TOML
+/// errors quote a short excerpt of the offending line, once.
 pub fn parse_scene_with_synth(text: &str) -> Result<(Scene, SynthConfig), AudioError> {
     let invalid = |m: String| AudioError::InvalidParam { field: "scene", reason: m };
-    let mut table: toml::Table = text.parse().map_err(|e: toml::de::Error| invalid(e.to_string()))?;
-    let Some(synth) = table.remove("synth") else {
-        return Ok((Scene::from_toml_str(text)?, SynthConfig::default()));
+    let mut table: toml::Table =
+        text.parse().map_err(|e: toml::de::Error| invalid(chirpmap_core::error::toml_error(text, &e)))?;
+    let (scene, cfg) = match table.remove("synth") {
+        None => (Scene::from_toml_str(text)?, SynthConfig::default()),
+        Some(synth) => {
+            let cfg: SynthConfig = synth.try_into().map_err(|e: toml::de::Error| {
+                let mut msg = e.message().lines().next().unwrap_or("").to_string();
+                if msg.chars().count() > 2 * chirpmap_core::error::EXCERPT_CHARS {
+                    msg = chirpmap_core::error::excerpt(&msg, 0);
+                }
+                invalid(format!("[synth]: {msg}"))
+            })?;
+            let rest = toml::to_string(&table).map_err(|e| invalid(e.to_string()))?;
+            (Scene::from_toml_str(&rest)?, cfg)
+        }
     };
-    let cfg: SynthConfig = synth.try_into().map_err(|e: toml::de::Error| invalid(format!("[synth]: {e}")))?;
-    let rest = toml::to_string(&table).map_err(|e| invalid(e.to_string()))?;
-    Ok((Scene::from_toml_str(&rest)?, cfg))
+    scene.validate()?;
+    cfg.validate()?;
+    Ok((scene, cfg))
+}
+
+/// Bytes [`synthesize`] will hold at its peak for `scene` and `cfg`: one
+/// `f32` channel per listener over the whole recording, plus the poses
+/// (24 bytes each) and the chirp start list. Checked against
+/// [`crate::error::MEMORY_CAP_BYTES`] before anything is allocated (issue 8,
+/// item 9: 50 listeners over an hour needed 35 GB and aborted).
+pub fn synth_memory_bytes(scene: &Scene, cfg: &SynthConfig) -> f64 {
+    let (samples, poses) = synth_lengths(scene, cfg);
+    let listeners = scene.listeners.len() as f64;
+    listeners * (samples * 4.0 + poses * 24.0) + cfg.chirps as f64 * 8.0
+}
+
+/// Samples per channel and poses per listener of a rendering (as `f64`, so
+/// absurd inputs do not overflow before they are refused).
+fn synth_lengths(scene: &Scene, cfg: &SynthConfig) -> (f64, f64) {
+    let period = scene.chirp.duration + cfg.gap_s;
+    let total_s = cfg.start_s + cfg.chirps as f64 * period - cfg.gap_s + cfg.tail_s;
+    ((total_s * f64::from(cfg.sample_rate_hz)).ceil(), (total_s / cfg.pose_period_s).floor() + 1.0)
 }
 
 /// Position of a listener `t_s` after the start: constant speed along a
@@ -197,7 +237,23 @@ pub struct Synthesized {
 
 /// Renders the scene's chirp train as heard by every listener.
 pub fn synthesize(scene: &Scene, cfg: &SynthConfig) -> Result<Synthesized, AudioError> {
+    scene.validate()?;
     cfg.validate()?;
+    let (samples, poses) = synth_lengths(scene, cfg);
+    crate::error::check_memory(
+        || {
+            format!(
+                "synthesising {} listener(s) × {} samples ({} s at {} Hz, 4 bytes each) plus {} poses each",
+                scene.listeners.len(),
+                Num(samples),
+                Num(samples / f64::from(cfg.sample_rate_hz)),
+                cfg.sample_rate_hz,
+                Num(poses)
+            )
+        },
+        synth_memory_bytes(scene, cfg) as u128,
+        "use fewer listeners, fewer or shorter chirps, or a longer synth.pose_period_s",
+    )?;
     let chirp = scene.chirp.build()?;
     let obstacles = scene.explicit_obstacles()?;
     let a = scene.world.speed_of_sound;
@@ -223,7 +279,7 @@ pub fn synthesize(scene: &Scene, cfg: &SynthConfig) -> Result<Synthesized, Audio
     let total_s = cfg.start_s + cfg.chirps as f64 * period - cfg.gap_s + cfg.tail_s;
     let n = (total_s * fs).ceil() as usize;
     if n > 2_000_000_000 {
-        return Err(AudioError::InvalidParam { field: "synth", reason: format!("{total_s} s is too long") });
+        return Err(AudioError::InvalidParam { field: "synth", reason: format!("{} s is too long", Num(total_s)) });
     }
     let source = scene.source_position();
     let block = 64usize;

@@ -68,6 +68,13 @@ impl Recording {
     }
 }
 
+/// Highest sample rate accepted from a WAV header (Hz): above every audio
+/// and bat recorder (AudioMoth: 384 kHz). A header claiming 4294967295 Hz
+/// made `range` ask for 38 GB (issue 8, item 8).
+pub const MAX_SAMPLE_RATE_HZ: u32 = 1_000_000;
+/// Most channels accepted from a WAV header (microphone arrays have tens).
+pub const MAX_CHANNELS: u16 = 256;
+
 fn le_u16(b: &[u8], at: usize) -> Option<u16> {
     Some(u16::from_le_bytes(b.get(at..at + 2)?.try_into().ok()?))
 }
@@ -156,13 +163,30 @@ pub fn read_wav_bytes(bytes: &[u8]) -> Result<Recording, AudioError> {
     if rate == 0 {
         return Err(AudioError::NotWav("sample rate 0".into()));
     }
+    if rate > MAX_SAMPLE_RATE_HZ {
+        return Err(AudioError::Unsupported(format!(
+            "sample rate {rate} Hz in the header; at most {MAX_SAMPLE_RATE_HZ} Hz is accepted"
+        )));
+    }
+    if n_ch > usize::from(MAX_CHANNELS) {
+        return Err(AudioError::Unsupported(format!(
+            "{n_ch} channels in the header; at most {MAX_CHANNELS} are accepted"
+        )));
+    }
     let width = usize::from(bits / 8);
     let frame_bytes = width * n_ch;
     let frames = data.len() / frame_bytes;
     if frames == 0 {
         return Err(AudioError::NotWav("the data chunk holds no complete sample frame".into()));
     }
+    // Decoded samples are f32 (4 bytes) whatever the file's width.
+    crate::error::check_memory(
+        || format!("decoding {frames} frames × {n_ch} channel(s)"),
+        (frames as u128) * (n_ch as u128) * 4,
+        "split the recording into shorter files",
+    )?;
     let mut channels: Vec<Vec<f32>> = (0..n_ch).map(|_| Vec::with_capacity(frames)).collect();
+    let mut float_peak = 0.0f32;
     let mut clipped = 0usize;
     for frame in data.chunks_exact(frame_bytes) {
         for (c, s) in channels.iter_mut().zip(frame.chunks_exact(width)) {
@@ -185,11 +209,19 @@ pub fn read_wav_bytes(bytes: &[u8]) -> Result<Recording, AudioError> {
                 SampleFormat::Float32 => {
                     let f = f32::from_le_bytes([s[0], s[1], s[2], s[3]]);
                     clipped += usize::from(!f.is_finite() || f.abs() >= 1.0);
-                    if f.is_finite() { f } else { 0.0 }
+                    if f.is_finite() {
+                        float_peak = float_peak.max(f.abs());
+                        f
+                    } else {
+                        0.0
+                    }
                 }
             };
             c.push(v);
         }
+    }
+    if f64::from(float_peak) > crate::error::MAX_FLOAT_SAMPLE {
+        return Err(AudioError::BadScale { peak: float_peak });
     }
     Ok(Recording { sample_rate_hz: rate, format, channels, clipped_samples: clipped })
 }

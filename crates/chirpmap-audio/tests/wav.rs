@@ -20,8 +20,8 @@ fn wav_bytes(
     body.extend_from_slice(&format_tag.to_le_bytes());
     body.extend_from_slice(&channels.to_le_bytes());
     body.extend_from_slice(&rate.to_le_bytes());
-    let block = channels * bits / 8;
-    body.extend_from_slice(&(rate * u32::from(block)).to_le_bytes());
+    let block = channels.wrapping_mul(bits) / 8;
+    body.extend_from_slice(&rate.wrapping_mul(u32::from(block)).to_le_bytes());
     body.extend_from_slice(&block.to_le_bytes());
     body.extend_from_slice(&bits.to_le_bytes());
     for (id, payload) in extra {
@@ -149,4 +149,32 @@ proptest! {
         b.truncate(b.len().saturating_sub(cut));
         let _ = read_wav_bytes(&b);
     }
+}
+
+/// Issue 8, item 8: header fields a user (or a corrupt file) controls are
+/// bounded before anything is allocated, with the field and limit named.
+#[test]
+fn hostile_header_sizes_are_refused_before_allocating() {
+    let data = i16_data(&[1, 2, 3, 4]);
+    let e = read_wav_bytes(&wav_bytes(1, 1, u32::MAX, 16, &[], &data)).unwrap_err().to_string();
+    assert!(e.contains("sample rate 4294967295 Hz") && e.contains("at most 1000000 Hz"), "{e}");
+    let e = read_wav_bytes(&wav_bytes(1, 300, 48_000, 16, &[], &vec![0u8; 600 * 2])).unwrap_err().to_string();
+    assert!(e.contains("300 channels") && e.contains("at most 256"), "{e}");
+    // The decoded size is estimated and checked against the cap.
+    let e = chirpmap_audio::error::check_memory(|| "decoding".into(), 5 << 30, "hint").unwrap_err().to_string();
+    assert!(e.contains("5.4 GB") && e.contains("cap of 4.3 GB"), "{e}");
+}
+
+/// Issue 8, item 16: a float WAV scaled ×1e30 is an error about the samples'
+/// scale (it used to surface as an error about `--max-delta-d`).
+#[test]
+fn wrongly_scaled_float_wav_is_a_clear_error() {
+    let samples: Vec<u8> = (0..100).flat_map(|i| ((i as f32 * 0.1).sin() * 1e30).to_le_bytes()).collect();
+    let e = read_wav_bytes(&wav_bytes(3, 1, 48_000, 32, &[], &samples)).unwrap_err();
+    assert!(matches!(e, AudioError::BadScale { .. }), "{e}");
+    let msg = e.to_string();
+    assert!(msg.contains("full scale is ±1") && msg.contains("e29") && !msg.contains("delta"), "{msg}");
+    // A little over full scale is still read (and counted as clipped).
+    let ok: Vec<u8> = [0.5f32, 1.5, -2.0].iter().flat_map(|v| v.to_le_bytes()).collect();
+    assert_eq!(read_wav_bytes(&wav_bytes(3, 1, 48_000, 32, &[], &ok)).unwrap().clipped_samples, 2);
 }
