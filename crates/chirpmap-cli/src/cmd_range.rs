@@ -1,127 +1,24 @@
 //! `chirpmap range`: the paper's field pipeline (§IV) on a WAV file — find
 //! every chirp, estimate Δd to the first reflection per chirp, and (with a
-//! wall normal) the speaker-to-wall distance; median and 95 % CI.
+//! wall normal) the speaker-to-wall distance; median and 95 % CI. The work
+//! is the facade's `prepare` and `range`; this file reads and writes.
 
+use crate::args::{ChirpArgs, parse_point};
+use crate::inputs::{load_scene, prepare_wav};
 use crate::output::Staged;
 use crate::plot_audio::{render_spectrogram, render_spectrum};
-use anyhow::{Context, Result, bail};
-use chirpmap_audio::filter::{SavitzkyGolay, paper_highpass};
-use chirpmap_audio::ranging::{ChirpResult, Estimate, range_signal};
-use chirpmap_audio::spectrum::{FftCache, magnitude_spectrum, stft_magnitude};
-use chirpmap_audio::stats::{median, median_ci95};
-use chirpmap_audio::{ChirpTemplate, Method, RangeLimits, Ranger, read_wav, wall_distance_m};
-use chirpmap_core::{LinearChirp, Point, Sweep};
+use anyhow::{Context, Result};
+use chirpmap::audio::filter::SavitzkyGolay;
+use chirpmap::audio::ranging::Estimate;
+use chirpmap::audio::spectrum::{FftCache, magnitude_spectrum, stft_magnitude};
+use chirpmap::audio::{Method, Ranger};
+use chirpmap::core::Sweep;
+use chirpmap::{ChirpSpec, Point, Prepared, RangeGeometry};
 use clap::Args;
 use serde_json::{Value, json};
 use std::fmt::Write as _;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
-
-pub fn parse_point(s: &str) -> Result<[f64; 2], String> {
-    let v: Vec<f64> = s
-        .split(',')
-        .map(|p| p.trim().parse::<f64>().map_err(|_| format!("{p:?} is not a number")))
-        .collect::<Result<_, _>>()?;
-    let p: [f64; 2] = v.try_into().map_err(|_| "expected X,Y".to_string())?;
-    if p.iter().any(|x| !x.is_finite()) {
-        return Err("need finite values".into());
-    }
-    Ok(p)
-}
-
-/// The known chirp and how to read the recording (shared with `map --wav`).
-#[derive(Debug, Args, Clone)]
-pub struct ChirpArgs {
-    /// Chirp start frequency (Hz). Paper field test: 10 kHz.
-    #[arg(long, default_value_t = 10_000.0)]
-    pub f_start: f64,
-    /// Chirp end frequency (Hz). Paper field test: 0.2 kHz.
-    #[arg(long, default_value_t = 200.0)]
-    pub f_end: f64,
-    /// Chirp duration T (s). Paper field test: 1, 0.5 or 0.25.
-    #[arg(long, default_value_t = 1.0)]
-    pub duration: f64,
-    /// Speed of sound (m/s).
-    #[arg(long, default_value_t = 343.0)]
-    pub speed_of_sound: f64,
-    /// Channel to analyse (from 0).
-    #[arg(long, default_value_t = 0)]
-    pub channel: usize,
-    /// Largest path difference searched (m). Default: min(60, a·T/2).
-    #[arg(long)]
-    pub max_delta_d: Option<f64>,
-}
-
-/// Plausible speeds of sound (m/s): from cold air's ~330 with wide margins
-/// for other gases, up to water's ~1500.
-pub const SPEED_OF_SOUND_RANGE: (f64, f64) = (100.0, 2000.0);
-
-/// A loaded, high-passed channel and the chirp template.
-#[derive(Debug)]
-pub struct Prepared {
-    pub x: Vec<f32>,
-    pub tpl: ChirpTemplate,
-    pub lim: RangeLimits,
-    pub sample_rate_hz: f64,
-    pub clipped: usize,
-    pub duration_s: f64,
-}
-
-pub fn prepare(wav: &std::path::Path, c: &ChirpArgs) -> Result<Prepared> {
-    let rec = read_wav(wav).with_context(|| format!("{}", wav.display()))?;
-    if rec.clipped_samples > 0 {
-        eprintln!(
-            "warning: {}: {} sample(s) at full scale (clipping); estimates may be degraded",
-            wav.display(),
-            rec.clipped_samples
-        );
-    }
-    let fs = f64::from(rec.sample_rate_hz);
-    rec.channel(c.channel)?;
-    let (clipped, mut channels) = (rec.clipped_samples, rec.channels);
-    let mut x = channels.swap_remove(c.channel);
-    if x.iter().all(|v| *v == 0.0) {
-        bail!("{}: channel {} is silent (every sample is zero)", wav.display(), c.channel);
-    }
-    let chirp = LinearChirp::new(c.f_start, c.f_end, c.duration)?;
-    let tpl = ChirpTemplate::new(chirp, fs).with_context(|| format!("{}", wav.display()))?;
-    if tpl.len() > x.len() {
-        bail!(
-            "{}: the chirp ({} s) is longer than the recording ({:.3} s); check --duration",
-            wav.display(),
-            c.duration,
-            x.len() as f64 / fs
-        );
-    }
-    if !(c.speed_of_sound.is_finite() && (SPEED_OF_SOUND_RANGE.0..=SPEED_OF_SOUND_RANGE.1).contains(&c.speed_of_sound))
-    {
-        bail!(
-            "--speed-of-sound must be between {} and {} m/s (air: about 343), got {}",
-            SPEED_OF_SOUND_RANGE.0,
-            SPEED_OF_SOUND_RANGE.1,
-            c.speed_of_sound
-        );
-    }
-    paper_highpass(fs)?.filter_in_place(&mut x);
-    let mut lim = RangeLimits::for_chirp(c.duration, c.speed_of_sound);
-    if let Some(m) = c.max_delta_d {
-        if !(m.is_finite() && m > lim.min_delta_d_m) {
-            bail!("--max-delta-d must be > {} m", lim.min_delta_d_m);
-        }
-        // A reflection later than one chirp no longer overlaps its direct
-        // sound, and the search window would reach the next chirp.
-        let most = c.speed_of_sound * c.duration;
-        if m > most {
-            bail!(
-                "--max-delta-d {m} m is longer than a·T = {most:.1} m (speed of sound × --duration); \
-                 echoes that late are not ranged"
-            );
-        }
-        lim.max_delta_d_m = m;
-    }
-    let duration_s = x.len() as f64 / fs;
-    Ok(Prepared { x, tpl, lim, sample_rate_hz: fs, clipped, duration_s })
-}
 
 #[derive(Debug, Args)]
 pub struct RangeArgs {
@@ -139,6 +36,10 @@ pub struct RangeArgs {
     pub wall_normal: Option<[f64; 2]>,
     #[command(flatten)]
     pub chirp: ChirpArgs,
+    /// Scene TOML whose [chirp] and speed of sound are the recording's (as `synth` rendered it); the chirp
+    /// flags override it.
+    #[arg(long)]
+    pub scene: Option<PathBuf>,
     /// Ranging method: gap (the paper's), matched or dechirp.
     #[arg(long, default_value = "gap")]
     pub method: Method,
@@ -151,64 +52,45 @@ pub struct RangeArgs {
     pub out: PathBuf,
 }
 
-fn method_summary(method: Method, rows: &[ChirpResult], speaker: Point, mic: Point, normal: Option<Point>) -> Value {
-    let dds: Vec<f64> = rows.iter().filter_map(|r| r.estimate.map(|e| e.delta_d_m)).collect();
-    let mut s = json!({
-        "method": method.name(),
-        "chirps": rows.len(),
-        "estimates": dds.len(),
-        "delta_d_median": median(&dds),
-        "delta_d_ci95": median_ci95(&dds),
-    });
-    if let Some(n) = normal {
-        let ws: Vec<f64> = dds.iter().filter_map(|&d| wall_distance_m(speaker, mic, n, d)).collect();
-        s["wall_distance_median"] = json!(median(&ws));
-        s["wall_distance_ci95"] = json!(median_ci95(&ws));
-    }
-    s
-}
-
 fn fmt_opt(v: Option<f64>) -> String {
     v.map_or(String::new(), |v| format!("{v:.6}"))
 }
 
 pub fn run(args: &RangeArgs) -> Result<()> {
     let started = Instant::now();
-    let speaker = Point::new(args.speaker[0], args.speaker[1]);
-    let mic = Point::new(args.mic[0], args.mic[1]);
-    if speaker.dist(mic) < 1e-9 {
-        bail!("--speaker and --mic are the same point ({}, {}); the direct distance must be > 0", speaker.x, speaker.y);
+    let mut outputs = vec!["chirps.csv", "summary.json", "spectrogram.png", "spectrum.png"];
+    if args.compare {
+        outputs.push("compare.csv");
     }
-    let normal = match args.wall_normal {
-        Some([nx, ny]) if (nx * nx + ny * ny).sqrt() < 1e-12 => bail!("--wall-normal must not be zero"),
-        Some([nx, ny]) => Some(Point::new(nx, ny)),
-        None => None,
+    let inputs: Vec<&Path> =
+        [Some(&args.wav), args.scene.as_ref()].into_iter().flatten().map(PathBuf::as_path).collect();
+    let geom = RangeGeometry {
+        speaker: Point::new(args.speaker[0], args.speaker[1]),
+        mic: Point::new(args.mic[0], args.mic[1]),
+        wall_normal: args.wall_normal.map(|[x, y]| Point::new(x, y)),
     };
-    let prep = prepare(&args.wav, &args.chirp)?;
+    geom.validate()?;
+    let mut out = Staged::dir(&args.out, &outputs, &inputs)?;
+    let base = match &args.scene {
+        Some(p) => ChirpSpec::from_scene(&load_scene(p)?.0),
+        None => ChirpSpec::default(),
+    };
+    let chirp = args.chirp.spec(base);
+    let (prep, clipped) = prepare_wav(&args.wav, args.chirp.channel, &chirp)?;
     let methods: Vec<Method> = if args.compare { Method::ALL.to_vec() } else { vec![args.method] };
-    let results =
-        range_signal(&prep.x, &prep.tpl, &methods, &prep.lim).with_context(|| format!("{}", args.wav.display()))?;
-    let fs = prep.sample_rate_hz;
-    let per_method: Vec<Vec<ChirpResult>> = (0..methods.len())
-        .map(|k| {
-            results
-                .iter()
-                .enumerate()
-                .map(|(i, (d, e))| ChirpResult { index: i, onset_s: d.onset_sample as f64 / fs, estimate: e[k] })
-                .collect()
-        })
-        .collect();
+    let report = chirpmap::range(&prep, &methods, &geom).with_context(|| format!("{}", args.wav.display()))?;
+    let results = &report.chirps;
 
     let mut csv = String::from(if args.compare { "method," } else { "" });
     csv.push_str("index,onset_s,delta_f_hz,delta_d_m,wall_distance_m\n");
-    for (k, rows) in per_method.iter().enumerate() {
+    for (k, rows) in report.per_method.iter().enumerate() {
         for r in rows {
             if args.compare {
                 csv.push_str(methods[k].name());
                 csv.push(',');
             }
             let e = r.estimate;
-            let wall = e.zip(normal).and_then(|(e, n)| wall_distance_m(speaker, mic, n, e.delta_d_m));
+            let wall = e.and_then(|e| chirpmap::wall_distance(&geom, e.delta_d_m));
             let _ = writeln!(
                 csv,
                 "{},{:.6},{},{},{}",
@@ -220,26 +102,22 @@ pub fn run(args: &RangeArgs) -> Result<()> {
             );
         }
     }
-    let summaries: Vec<Value> =
-        per_method.iter().zip(&methods).map(|(rows, &m)| method_summary(m, rows, speaker, mic, normal)).collect();
+    let summaries: Vec<Value> = report.summaries.iter().map(serde_json::to_value).collect::<Result<_, _>>()?;
     let primary = if args.compare { methods.iter().position(|&m| m == args.method).unwrap_or(0) } else { 0 };
     let mut summary = summaries[primary].clone();
     summary["wav"] = json!(args.wav.display().to_string());
-    summary["sample_rate_hz"] = json!(fs);
+    summary["sample_rate_hz"] = json!(prep.sample_rate_hz);
     summary["recording_s"] = json!(prep.duration_s);
-    summary["clipped_samples"] = json!(prep.clipped);
+    summary["clipped_samples"] = json!(clipped);
     summary["speaker"] = json!(args.speaker);
     summary["mic"] = json!(args.mic);
-    summary["chirp"] =
-        json!({"f_start": args.chirp.f_start, "f_end": args.chirp.f_end, "duration": args.chirp.duration});
+    summary["chirp"] = json!({"f_start": chirp.f_start_hz, "f_end": chirp.f_end_hz, "duration": chirp.duration_s});
     summary["max_delta_d_m"] = json!(prep.lim.max_delta_d_m);
-    summary["gap_resolution_floor_m"] =
-        json!(chirpmap_audio::ranging::gap_floor_m(&prep.tpl, prep.lim.speed_of_sound_mps));
+    summary["gap_resolution_floor_m"] = json!(report.gap_resolution_floor_m);
     if args.compare {
         summary["compare"] = json!(summaries);
     }
 
-    let mut out = Staged::new(&args.out)?;
     out.write("chirps.csv", &csv)?;
     if args.compare {
         let mut c = String::from(
@@ -310,7 +188,7 @@ fn plot_chirp(
     let frames = stft_magnitude(&mut cache, &prep.x[s0..s1], frame, hop, nfft);
     let f_max = tpl.chirp.f_start_hz().max(tpl.chirp.f_end_hz()) * 1.15;
     render_spectrogram(
-        &out.path("spectrogram.png"),
+        &out.path("spectrogram.png")?,
         &format!("chirp {} of {count}: spectrogram", index + 1),
         &frames,
         s0 as f64 / fs,
@@ -334,7 +212,7 @@ fn plot_chirp(
     let freqs: Vec<f64> = idx.iter().map(|&k| k as f64 * bin_hz).collect();
     let amps: Vec<f64> = idx.iter().map(|&k| spec[k]).collect();
     render_spectrum(
-        &out.path("spectrum.png"),
+        &out.path("spectrum.png")?,
         &format!("chirp {} of {count}: frame at {:.3} s into the chirp", index + 1, off as f64 / fs),
         &freqs,
         &amps,

@@ -1,18 +1,18 @@
 //! `chirpmap simulate`: scene → particle simulator (paper §II.B) → echoes →
 //! Algorithm 1 → highlights → scores (§V.A), with plots.
 
-use crate::cmd_map::{highlights_csv, load_scene, map_echoes};
 use crate::echoes_csv::write_echoes;
+use crate::inputs::load_scene;
 use crate::output::Staged;
 use crate::plot::{MapPlot, SpectrumPlot, render_map, render_spectrum};
+use crate::tables::{fmt_score, highlights_csv};
 use anyhow::{Result, anyhow};
-use chirpmap_core::grid::DEFAULT_MEMORY_CAP_BYTES;
-use chirpmap_core::{GridSpec, Mapper, Point, Scene, score_highlight, score_obstacle};
-use chirpmap_sim::{BIN_HZ, Measurement, Resolved, SimOutput, resolve, simulate};
+use chirpmap::sim::{BIN_HZ, Measurement, Resolved, SimOutput};
+use chirpmap::{Point, Scene};
 use clap::Args;
 use serde_json::json;
 use std::fmt::Write as _;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 #[derive(Debug, Args)]
@@ -33,34 +33,31 @@ pub struct SimulateArgs {
 
 pub fn run(args: &SimulateArgs) -> Result<()> {
     let started = Instant::now();
+    let mut outputs = vec!["echoes.csv", "highlights.csv", "scene.toml", "map.png", "summary.json"];
+    if args.spectra {
+        outputs.extend(["spectra.csv", "peaks.csv", "spectrum.png"]);
+    }
+    let inputs: Vec<&Path> = args.scene.iter().map(PathBuf::as_path).collect();
+    let mut staged = Staged::dir(&args.out, &outputs, &inputs)?;
     let (mut scene, name) = match &args.scene {
-        Some(p) => (load_scene(p)?, p.display().to_string()),
+        Some(p) => (load_scene(p)?.0, p.display().to_string()),
         None => (Scene::default(), "default scene".to_string()),
     };
     if let Some(seed) = args.seed {
         scene.seed = seed;
     }
-    let resolved = resolve(&scene).map_err(|e| anyhow!("{name}: {e}"))?;
-    let sim_started = Instant::now();
-    let out = simulate(&resolved);
-    let sim_s = sim_started.elapsed().as_secs_f64();
+    let run = chirpmap::simulate(&scene).map_err(|e| anyhow!("{name}: {e}"))?;
+    let (resolved, out, map) = (&run.resolved, &run.output, &run.map);
+    let (so, sh) = (run.scores.score_obstacle, run.scores.score_highlight);
 
-    let params = resolved.scene.mapping;
-    let spec = GridSpec::from_bounds(resolved.world, params.cell, DEFAULT_MEMORY_CAP_BYTES)?;
-    let outcome = map_echoes(&out.echoes, spec, params)?;
-    let points: Vec<Point> = outcome.highlights.iter().map(|h| h.pos).collect();
-    let so = score_obstacle(&resolved.obstacles, &points);
-    let sh = score_highlight(&resolved.obstacles, &points);
-
-    let mut staged = Staged::new(&args.out)?;
     let mut echoes_csv = Vec::new();
     write_echoes(&mut echoes_csv, &out.echoes)?;
     staged.write("echoes.csv", echoes_csv)?;
-    staged.write("highlights.csv", highlights_csv(&outcome.highlights))?;
-    staged.write("scene.toml", resolved_scene_toml(&resolved))?;
-    let path = trajectory_points(&resolved);
+    staged.write("highlights.csv", highlights_csv(&map.highlights))?;
+    staged.write("scene.toml", resolved_scene_toml(resolved))?;
+    let path = trajectory_points(resolved);
     let radius = resolved.listeners.first().map(|l| l.radius_m);
-    let png = staged.path("map.png");
+    let png = staged.path("map.png")?;
     render_map(
         &png,
         &MapPlot {
@@ -68,12 +65,12 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
                 "seed {}: {} echoes, {} highlights, score_obstacle {}, score_highlight {}",
                 resolved.scene.seed,
                 out.echoes.len(),
-                outcome.highlights.len(),
+                map.highlights.len(),
                 fmt_score(so, 3),
                 fmt_score(sh, 3)
             ),
-            grid: outcome.mapper.grid(),
-            highlights: &outcome.highlights,
+            grid: &map.grid,
+            highlights: &map.highlights,
             sources: &[resolved.source],
             listener_positions: &path,
             listener_radius_m: radius,
@@ -81,12 +78,13 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
         },
     )?;
     if args.spectra {
-        write_spectra(&mut staged, &resolved, &out)?;
+        write_spectra(&mut staged, resolved, out)?;
     }
+    let spec = map.spec();
     let summary = json!({
         "score_obstacle": so,
         "score_highlight": sh,
-        "n_highlights": outcome.highlights.len(),
+        "n_highlights": map.highlights.len(),
         "n_echoes": out.echoes.len(),
         "n_measurements": out.measurements.len(),
         "n_obstacles": resolved.obstacles.len(),
@@ -94,7 +92,8 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
         "seed": resolved.scene.seed,
         "run_index": resolved.scene.run_index,
         "simulated_s": resolved.last_tick as f64 * resolved.tick_s,
-        "simulate_elapsed_s": sim_s,
+        "grid": { "bounds": [spec.x_min_m, spec.y_min_m, spec.x_max_m(), spec.y_max_m()], "nx": spec.nx, "ny": spec.ny, "cell": spec.cell_m },
+        "simulate_elapsed_s": run.simulate_elapsed_s,
         "elapsed_s": started.elapsed().as_secs_f64(),
     });
     staged.write("summary.json", serde_json::to_string_pretty(&summary)? + "\n")?;
@@ -103,17 +102,12 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
         "{} measurements -> {} echoes -> {} highlights in {:.3} s; wrote {}",
         out.measurements.len(),
         out.echoes.len(),
-        outcome.highlights.len(),
+        map.highlights.len(),
         started.elapsed().as_secs_f64(),
         dir.display()
     );
     say!("score_obstacle = {}, score_highlight = {}", fmt_score(so, 4), fmt_score(sh, 4));
     Ok(())
-}
-
-/// A score, or "n/a" when undefined (no obstacles).
-fn fmt_score(s: Option<f64>, digits: usize) -> String {
-    s.map_or_else(|| "n/a".into(), |v| format!("{v:.digits$}"))
 }
 
 fn resolved_scene_toml(r: &Resolved) -> String {
@@ -203,7 +197,7 @@ fn write_spectra(staged: &mut Staged, r: &Resolved, out: &SimOutput) -> Result<(
         .max_by_key(|m| (echoes_of(m), std::cmp::Reverse(m.tick)));
     let (f_a, f_b) = (r.sweep.f_start_hz(), r.sweep.f_end_hz());
     let f_range_hz = (f_a.min(f_b) - 100.0, f_a.max(f_b) + 100.0);
-    let png = staged.path("spectrum.png");
+    let png = staged.path("spectrum.png")?;
     match best {
         Some(m) => {
             let bins: Vec<(f64, f64)> = m.bins.iter().map(|&(b, v)| (b as f64 * BIN_HZ, v)).collect();
@@ -241,37 +235,4 @@ fn write_spectra(staged: &mut Staged, r: &Resolved, out: &SimOutput) -> Result<(
             },
         ),
     }
-}
-
-/// Scene checks for sweeps: everything `simulate` would refuse.
-pub fn validate_scene(scene: &Scene) -> Result<(), String> {
-    resolve(scene).map(|_| ()).map_err(|e| e.to_string())
-}
-
-/// One sweep run: run `run` (the random stream) of `scene`, mapped and scored.
-pub fn run_metrics(scene: &Scene, run: u64) -> Result<chirpmap_experiments::RunMetrics, String> {
-    let mut scene = scene.clone();
-    scene.run_index = run;
-    let resolved = resolve(&scene).map_err(|e| e.to_string())?;
-    let out = simulate(&resolved);
-    let params = resolved.scene.mapping;
-    let spec =
-        GridSpec::from_bounds(resolved.world, params.cell, DEFAULT_MEMORY_CAP_BYTES).map_err(|e| e.to_string())?;
-    let outcome = map_echoes(&out.echoes, spec, params).map_err(|e| e.to_string())?;
-    let points: Vec<Point> = outcome.highlights.iter().map(|h| h.pos).collect();
-    Ok(chirpmap_experiments::RunMetrics {
-        score_obstacle: score_obstacle(&resolved.obstacles, &points),
-        score_highlight: score_highlight(&resolved.obstacles, &points),
-        n_highlights: points.len(),
-        n_echoes: out.echoes.len(),
-    })
-}
-
-/// Listener 0's start and path length in the default scene (Table II's
-/// patterns are placed relative to it).
-pub fn listener0_path() -> ([f64; 2], f64) {
-    let scene = Scene::default();
-    let l0 = &scene.listeners[0];
-    let duration_s = resolve(&scene).map_or(0.0, |r| r.last_tick as f64 * r.tick_s);
-    (l0.start, l0.speed * duration_s)
 }

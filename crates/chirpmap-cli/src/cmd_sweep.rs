@@ -48,7 +48,7 @@ fn parse_shard(s: &str) -> Result<Shard, String> {
 
 /// Resolves a preset name or a sweep file.
 pub fn load_sweep(arg: &str) -> Result<SweepDef> {
-    let (start, path_len) = crate::cmd_simulate::listener0_path();
+    let (start, path_len) = chirpmap::default_listener_path();
     if let Some(def) = preset(arg, start, path_len) {
         return Ok(def);
     }
@@ -61,7 +61,7 @@ pub fn load_sweep(arg: &str) -> Result<SweepDef> {
 }
 
 fn plan(def: &SweepDef) -> Result<Plan, chirpmap_experiments::ExperimentError> {
-    def.plan(crate::cmd_simulate::validate_scene)
+    def.plan(chirpmap_experiments::pipeline::validate_scene)
 }
 
 fn finish(dir: &Path, plan: &Plan, summaries: &[chirpmap_experiments::summary::ConfigSummary]) -> Result<()> {
@@ -93,9 +93,10 @@ pub fn run_sweep_cmd(args: &SweepArgs) -> Result<()> {
             .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
     let started = Instant::now();
-    let outcome = run_sweep(&plan, &args.out, shard, threads, crate::cmd_simulate::run_metrics, |done, _| {
-        bar.set_position(done as u64);
-    })?;
+    let outcome =
+        run_sweep(&plan, &args.out, shard, threads, chirpmap_experiments::pipeline::run_metrics, |done, _| {
+            bar.set_position(done as u64);
+        })?;
     bar.finish_and_clear();
     let secs = started.elapsed().as_secs_f64();
     eprintln!(

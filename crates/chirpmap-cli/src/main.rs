@@ -9,18 +9,21 @@ macro_rules! say {
     }};
 }
 
+mod args;
 mod cmd_map;
 mod cmd_range;
 mod cmd_simulate;
 mod cmd_sweep;
 mod cmd_synth;
 mod echoes_csv;
+mod inputs;
 mod mapdata;
 mod output;
 mod plot;
 mod plot_audio;
 mod plot_summary;
 mod poses_csv;
+mod tables;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;

@@ -2,37 +2,11 @@
 //! by `chirpmap synth --poses`; read for `chirpmap map --wav`.
 
 use anyhow::{Context, Result, bail};
-use chirpmap_core::Point;
+use chirpmap::{Point, PoseTrack};
 use std::path::Path;
 
-/// One listener's track, sorted by time, linearly interpolated.
-#[derive(Debug, Clone)]
-pub struct Track {
-    rows: Vec<(f64, Point)>,
-}
-
-impl Track {
-    /// First and last pose times (s).
-    pub fn span(&self) -> (f64, f64) {
-        (self.rows.first().map_or(0.0, |r| r.0), self.rows.last().map_or(0.0, |r| r.0))
-    }
-
-    /// Position at `t_s`; `None` outside the recorded span.
-    pub fn at(&self, t_s: f64) -> Option<Point> {
-        let k = self.rows.partition_point(|r| r.0 <= t_s);
-        if k == 0 || k > self.rows.len() {
-            return None;
-        }
-        let (t0, p0) = self.rows[k - 1];
-        let Some(&(t1, p1)) = self.rows.get(k) else {
-            return (t_s - t0 < 1e-9).then_some(p0);
-        };
-        let u = if t1 > t0 { (t_s - t0) / (t1 - t0) } else { 0.0 };
-        Some(p0 + (p1 - p0) * u)
-    }
-}
-
-pub fn read_poses(path: &Path, listener: u32) -> Result<Track> {
+/// Reads listener `listener`'s poses (the facade's `PoseTrack` checks them).
+pub fn read_poses(path: &Path, listener: u32) -> Result<PoseTrack> {
     let text = std::fs::read_to_string(path).with_context(|| format!("cannot read poses {}", path.display()))?;
     let mut lines = text.lines().enumerate();
     let header: Vec<String> =
@@ -84,6 +58,5 @@ pub fn read_poses(path: &Path, listener: u32) -> Result<Track> {
     if rows.is_empty() {
         bail!("{}: no poses for listener {listener}", path.display());
     }
-    rows.sort_by(|a, b| a.0.total_cmp(&b.0));
-    Ok(Track { rows })
+    PoseTrack::new(rows).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
 }

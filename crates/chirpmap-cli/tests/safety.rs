@@ -1,0 +1,154 @@
+//! No command writes over or deletes a file it did not create, or one of its
+//! own inputs; a refused output is refused before any work (issue 8, items
+//! 1–6 and 17).
+#![allow(clippy::unwrap_used)] // Tests may panic on broken fixtures.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn run(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_chirpmap")).args(args).output().expect("spawn chirpmap")
+}
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("chirpmap-cli-safety-{}-{name}", std::process::id()));
+    std::fs::remove_dir_all(&d).ok();
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// Every file under `dir` with its contents, to prove nothing changed.
+fn snapshot(dir: &Path) -> Vec<(String, Vec<u8>)> {
+    let mut v: Vec<(String, Vec<u8>)> = std::fs::read_dir(dir)
+        .unwrap()
+        .flatten()
+        .filter(|e| e.path().is_file())
+        .map(|e| (e.file_name().to_string_lossy().into_owned(), std::fs::read(e.path()).unwrap()))
+        .collect();
+    v.sort();
+    v
+}
+
+/// A small, fast scene: one circle, a short simulation.
+const SCENE: &str = "seed = 3\n[[obstacles]]\ncenter = [0.0, -8.0]\nradius = 2.0\n[[listeners]]\nstart = [-5.0, 5.0]\n\
+                     [particles]\nper_tick = 720\n[mapping]\npeak_radius = 2.0\n";
+
+#[test]
+fn map_into_a_simulate_output_keeps_its_inputs() {
+    let d = tmp("map-into-sim");
+    let scene = d.join("in.toml");
+    std::fs::write(&scene, SCENE).unwrap();
+    let out = d.join("run");
+    let o = run(&["simulate", s(&scene), "--out", s(&out)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let echoes = std::fs::read(out.join("echoes.csv")).unwrap();
+    let resolved = std::fs::read(out.join("scene.toml")).unwrap();
+    let (e, sc) = (out.join("echoes.csv"), out.join("scene.toml"));
+    let o = run(&["map", "--echoes", s(&e), "--scene", s(&sc), "--out", s(&out)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(std::fs::read(out.join("echoes.csv")).unwrap(), echoes, "map deleted or changed its input");
+    assert_eq!(std::fs::read(out.join("scene.toml")).unwrap(), resolved);
+    // And once more: the inputs are still kept (they stay in the manifest).
+    let o = run(&["map", "--echoes", s(&e), "--scene", s(&sc), "--out", s(&out)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(out.join("echoes.csv").exists() && out.join("scene.toml").exists());
+}
+
+#[test]
+fn simulate_refuses_to_replace_its_own_scene() {
+    let d = tmp("sim-own-scene");
+    let scene = d.join("scene.toml");
+    std::fs::write(&scene, SCENE).unwrap();
+    let before = snapshot(&d);
+    let o = run(&["simulate", s(&scene), "--out", s(&d)]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("would replace the input"), "{}", stderr(&o));
+    assert_eq!(snapshot(&d), before);
+}
+
+#[test]
+fn outputs_never_replace_a_users_file() {
+    let d = tmp("user-file");
+    std::fs::write(d.join("summary.json"), "my notes").unwrap();
+    let before = snapshot(&d);
+    let o = run(&["simulate", "--out", s(&d)]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("not written by chirpmap"), "{}", stderr(&o));
+    assert_eq!(snapshot(&d), before);
+}
+
+#[test]
+fn synth_refuses_outputs_that_are_its_input_however_spelled() {
+    let d = tmp("synth-input");
+    let scene = d.join("s.toml");
+    std::fs::write(&scene, "[[listeners]]\nstart = [1.0, 1.0]\nspeed = 0.0\n[synth]\nchirps = 1\n").unwrap();
+    let before = snapshot(&d);
+    let dotted = d.join(".").join("s.toml");
+    for args in [
+        vec!["synth", s(&scene), "--out", s(&dotted)],
+        vec!["synth", s(&scene), "--out", s(&d.join("r.wav")), "--poses", s(&dotted)],
+    ] {
+        let o = run(&args);
+        assert!(!o.status.success(), "{args:?}");
+        assert!(stderr(&o).contains("would replace the input"), "{}", stderr(&o));
+        assert_eq!(snapshot(&d), before, "{args:?}");
+    }
+}
+
+#[test]
+fn failed_synth_keeps_the_users_existing_output() {
+    let d = tmp("synth-fail");
+    let scene = d.join("s.toml");
+    std::fs::write(&scene, "[[listeners]]\nstart = [1.0, 1.0]\nspeed = 0.0\n[synth]\nchirps = 1\n").unwrap();
+    let wav = d.join("r.wav");
+    std::fs::write(&wav, "user's recording").unwrap();
+    std::fs::create_dir(d.join("poses_dir")).unwrap();
+    let o = run(&["synth", s(&scene), "--out", s(&wav), "--poses", s(&d.join("poses_dir"))]);
+    assert!(!o.status.success());
+    assert_eq!(std::fs::read_to_string(&wav).unwrap(), "user's recording");
+    // A synth output written by chirpmap may be rewritten; the user's may not.
+    let own = d.join("own.wav");
+    for _ in 0..2 {
+        let o = run(&["synth", s(&scene), "--out", s(&own)]);
+        assert!(o.status.success(), "{}", stderr(&o));
+    }
+    let o = run(&["synth", s(&scene), "--out", s(&wav)]);
+    assert!(!o.status.success());
+    assert_eq!(std::fs::read_to_string(&wav).unwrap(), "user's recording");
+}
+
+#[test]
+fn out_that_is_a_file_is_refused_before_work() {
+    let d = tmp("out-file");
+    let f = d.join("not-a-dir");
+    std::fs::write(&f, "x").unwrap();
+    let o = run(&["simulate", "--out", s(&f)]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("is not a directory"), "{}", stderr(&o));
+    assert_eq!(std::fs::read_to_string(&f).unwrap(), "x");
+}
+
+#[test]
+fn debris_of_a_killed_run_is_removed_by_the_next_run() {
+    let d = tmp("debris");
+    let out = d.join("run");
+    std::fs::create_dir_all(out.join(".chirpmap-partial-4000000000")).unwrap();
+    std::fs::write(out.join(".chirpmap-partial-4000000000/map.png"), "half").unwrap();
+    std::fs::write(d.join("x.wav.partial-4000000000"), "half").unwrap();
+    let scene = d.join("s.toml");
+    std::fs::write(&scene, SCENE).unwrap();
+    let o = run(&["simulate", s(&scene), "--out", s(&out)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(!out.join(".chirpmap-partial-4000000000").exists());
+    let o = run(&["synth", s(&scene), "--out", s(&d.join("x.wav"))]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(!d.join("x.wav.partial-4000000000").exists());
+}

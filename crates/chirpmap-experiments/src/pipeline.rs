@@ -1,0 +1,23 @@
+//! What one sweep run is: the facade's simulate → map → score, reduced to
+//! the metrics a runs.csv row records.
+
+use crate::runs::RunMetrics;
+use chirpmap::Scene;
+
+/// Scene checks for sweeps: everything `simulate` would refuse.
+pub fn validate_scene(scene: &Scene) -> Result<(), String> {
+    chirpmap::validate_scene(scene).map_err(|e| e.to_string())
+}
+
+/// Run `run` (the random stream) of `scene`, simulated, mapped and scored.
+pub fn run_metrics(scene: &Scene, run: u64) -> Result<RunMetrics, String> {
+    let mut scene = scene.clone();
+    scene.run_index = run;
+    let sim = chirpmap::simulate(&scene).map_err(|e| e.to_string())?;
+    Ok(RunMetrics {
+        score_obstacle: sim.scores.score_obstacle,
+        score_highlight: sim.scores.score_highlight,
+        n_highlights: sim.map.highlights.len(),
+        n_echoes: sim.output.echoes.len(),
+    })
+}

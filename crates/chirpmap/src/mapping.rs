@@ -1,0 +1,168 @@
+//! Echoes → map → highlights → scores (paper Algorithm 1 and §V.A).
+
+use crate::error::{Error, Result};
+use chirpmap_core::grid::DEFAULT_MEMORY_CAP_BYTES;
+use chirpmap_core::{
+    AccumulationMapper, Echo, Grid, GridSpec, Highlight, Mapper, MappingParams, Obstacle, Point, score_highlight,
+    score_obstacle,
+};
+use serde::Serialize;
+use std::collections::HashSet;
+
+/// What to map and how.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MapOptions {
+    /// Algorithm 1's parameters (cell, thresholds, window), paper values by default.
+    pub params: MappingParams,
+    /// Grid bounds `[x_min, y_min, x_max, y_max]` (m); `None` covers every ellipse.
+    pub bounds: Option<[f64; 4]>,
+    /// Cap on the mapper's working memory (bytes); bigger grids are refused
+    /// before allocating.
+    pub memory_cap_bytes: u128,
+}
+
+impl Default for MapOptions {
+    fn default() -> Self {
+        Self { params: MappingParams::default(), bounds: None, memory_cap_bytes: DEFAULT_MEMORY_CAP_BYTES }
+    }
+}
+
+/// A finished map.
+#[derive(Debug, Clone)]
+pub struct MapResult {
+    /// The accumulated grid (rows = y, row 0 at `spec.y_min_m`).
+    pub grid: Grid,
+    /// Likely obstacle locations, as Algorithm 1 returns them.
+    pub highlights: Vec<Highlight>,
+    /// Cell updates made while mapping (the benchmarks' work measure).
+    pub cells_updated: u64,
+    /// The parameters the map was made with.
+    pub params: MappingParams,
+}
+
+impl MapResult {
+    /// Placement of the grid in the world.
+    pub fn spec(&self) -> GridSpec {
+        self.grid.spec
+    }
+
+    /// Highlight positions only (what the scores take).
+    pub fn highlight_points(&self) -> Vec<Point> {
+        self.highlights.iter().map(|h| h.pos).collect()
+    }
+}
+
+/// The paper's two scores (§V.A); `None` when the scene has no obstacles.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Scores {
+    /// How well each obstacle is described by a highlight (false negatives).
+    pub score_obstacle: Option<f64>,
+    /// How well each highlight describes an obstacle (false positives).
+    pub score_highlight: Option<f64>,
+}
+
+/// Scores `highlights` against the true `obstacles` (paper §V.A).
+pub fn score(obstacles: &[Obstacle], highlights: &[Point]) -> Scores {
+    Scores {
+        score_obstacle: score_obstacle(obstacles, highlights),
+        score_highlight: score_highlight(obstacles, highlights),
+    }
+}
+
+/// Bounds covering every ellipse and every `extra` box `(lo, hi)`, snapped
+/// outward to whole cells plus one; `None` when nothing finite is covered.
+pub fn covering_bounds(echoes: &[Echo], extra: &[(Point, Point)], cell_m: f64) -> Option<[f64; 4]> {
+    let mut b = [f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY];
+    let mut grow = |lo: Point, hi: Point| {
+        b = [b[0].min(lo.x), b[1].min(lo.y), b[2].max(hi.x), b[3].max(hi.y)];
+    };
+    for e in echoes {
+        if let Ok(el) = e.ellipse() {
+            let (lo, hi) = el.bbox();
+            grow(lo, hi);
+        }
+    }
+    for &(lo, hi) in extra {
+        grow(lo, hi);
+    }
+    if !b.iter().all(|v| v.is_finite()) {
+        return None;
+    }
+    let snap_lo = |v: f64| (v / cell_m).floor() * cell_m - cell_m;
+    let snap_hi = |v: f64| (v / cell_m).ceil() * cell_m + cell_m;
+    Some([snap_lo(b[0]), snap_lo(b[1]), snap_hi(b[2]), snap_hi(b[3])])
+}
+
+/// Maps `echoes` with Algorithm 1. `extra` boxes (e.g. the obstacles to be
+/// drawn) widen the default bounds.
+pub fn map_echoes(echoes: &[Echo], extra: &[(Point, Point)], opts: &MapOptions) -> Result<MapResult> {
+    let params = opts.params;
+    params.validate()?;
+    if echoes.is_empty() {
+        return Err(Error::Invalid("no echoes to map".into()));
+    }
+    let bounds = match opts.bounds {
+        Some(b) => b,
+        None => covering_bounds(echoes, extra, params.cell)
+            .ok_or_else(|| Error::Invalid("cannot derive bounds from the echoes".into()))?,
+    };
+    let spec = GridSpec::from_bounds(bounds, params.cell, opts.memory_cap_bytes)?;
+    map_on_grid(echoes, spec, params)
+}
+
+/// Maps `echoes` on a given grid (the simulator maps on its world).
+pub fn map_on_grid(echoes: &[Echo], spec: GridSpec, params: MappingParams) -> Result<MapResult> {
+    let mut mapper = AccumulationMapper::new(spec, params)?;
+    for e in echoes {
+        mapper.add_echo(e)?;
+    }
+    let highlights = mapper.highlights();
+    let cells_updated = mapper.cells_updated();
+    Ok(MapResult { grid: mapper.into_grid(), highlights, cells_updated, params })
+}
+
+/// Distinct sources (in first-seen order) and the listener positions where
+/// they change, for drawing the echoes' foci. Linear in the echoes.
+pub fn foci(echoes: &[Echo]) -> (Vec<Point>, Vec<Point>) {
+    let mut seen: HashSet<(u64, u64)> = HashSet::new();
+    let mut sources: Vec<Point> = Vec::new();
+    let mut listeners: Vec<Point> = Vec::new();
+    for e in echoes {
+        if seen.insert((e.source.x.to_bits(), e.source.y.to_bits())) {
+            sources.push(e.source);
+        }
+        if listeners.last() != Some(&e.listener) {
+            listeners.push(e.listener);
+        }
+    }
+    (sources, listeners)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn echo(sx: f64, lx: f64, dd: f64) -> Echo {
+        Echo::new(Point::new(sx, 0.0), Point::new(lx, 0.0), dd, 1.0, 0.0, 0).expect("valid echo")
+    }
+
+    #[test]
+    fn foci_keeps_first_seen_order_and_dedups() {
+        let es = [echo(0.0, 1.0, 1.0), echo(5.0, 1.0, 1.0), echo(0.0, 2.0, 1.0), echo(0.0, 2.0, 2.0)];
+        let (s, l) = foci(&es);
+        assert_eq!(s, vec![Point::new(0.0, 0.0), Point::new(5.0, 0.0)]);
+        assert_eq!(l, vec![Point::new(1.0, 0.0), Point::new(2.0, 0.0)]);
+    }
+
+    #[test]
+    fn covering_bounds_contains_the_ellipse() {
+        // Foci (0,0), (2,0), Δd = 2: major axis 4, so x ∈ [-1, 3], y ∈ [-√3, √3].
+        let b = covering_bounds(&[echo(0.0, 2.0, 2.0)], &[], 0.1).expect("finite");
+        assert!(b[0] <= -1.0 && b[2] >= 3.0 && b[1] <= -(3f64).sqrt() && b[3] >= 3f64.sqrt());
+    }
+
+    #[test]
+    fn empty_echoes_is_an_error() {
+        assert!(map_echoes(&[], &[], &MapOptions::default()).is_err());
+    }
+}

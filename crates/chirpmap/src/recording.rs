@@ -1,0 +1,358 @@
+//! Recordings → chirps → path differences (paper §IV), and a moving
+//! listener's recording → echoes for a map.
+
+use crate::error::{Error, Result};
+use chirpmap_audio::filter::paper_highpass;
+use chirpmap_audio::ranging::{ChirpResult, RangedChirp, gap_floor_m, range_signal};
+use chirpmap_audio::stats::{median, median_ci95};
+use chirpmap_audio::{ChirpTemplate, Method, RangeLimits, wall_distance_m};
+use chirpmap_core::{Echo, LinearChirp, Point, Scene};
+use serde::Serialize;
+
+/// Plausible speeds of sound (m/s): from cold air's ~330 with wide margins
+/// for other gases, up to water's ~1500.
+pub const SPEED_OF_SOUND_RANGE_MPS: (f64, f64) = (100.0, 2000.0);
+
+/// The known chirp of a recording and the medium.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct ChirpSpec {
+    /// Start frequency (Hz). Paper: 10 kHz.
+    pub f_start_hz: f64,
+    /// End frequency (Hz). Paper: 0.2 kHz.
+    pub f_end_hz: f64,
+    /// Sweep duration T (s).
+    pub duration_s: f64,
+    /// Speed of sound (m/s).
+    pub speed_of_sound_mps: f64,
+    /// Largest path difference searched (m); `None`: min(60, a·T/2).
+    pub max_delta_d_m: Option<f64>,
+}
+
+impl Default for ChirpSpec {
+    /// The scene's defaults, so that `synth` on a scene without `[chirp]`
+    /// and `range` with its defaults agree.
+    fn default() -> Self {
+        let scene = Scene::default();
+        Self {
+            f_start_hz: scene.chirp.f_start,
+            f_end_hz: scene.chirp.f_end,
+            duration_s: scene.chirp.duration,
+            speed_of_sound_mps: scene.world.speed_of_sound,
+            max_delta_d_m: None,
+        }
+    }
+}
+
+impl ChirpSpec {
+    /// The chirp and speed of sound of a scene (what `synth` renders).
+    pub fn from_scene(scene: &Scene) -> Self {
+        Self {
+            f_start_hz: scene.chirp.f_start,
+            f_end_hz: scene.chirp.f_end,
+            duration_s: scene.chirp.duration,
+            speed_of_sound_mps: scene.world.speed_of_sound,
+            max_delta_d_m: None,
+        }
+    }
+}
+
+/// One channel, high-passed as the paper does (100 Hz), with its chirp
+/// template and search limits: the input of every ranging step.
+#[derive(Debug, Clone)]
+pub struct Prepared {
+    /// High-passed samples.
+    pub x: Vec<f32>,
+    /// The known chirp, sampled.
+    pub tpl: ChirpTemplate,
+    /// Path-difference search limits.
+    pub lim: RangeLimits,
+    /// Sample rate (Hz).
+    pub sample_rate_hz: f64,
+    /// Length of the channel (s).
+    pub duration_s: f64,
+}
+
+/// Validates the chirp against the channel and prepares it for ranging.
+pub fn prepare(mut x: Vec<f32>, sample_rate_hz: f64, chirp: &ChirpSpec) -> Result<Prepared> {
+    let (lo, hi) = SPEED_OF_SOUND_RANGE_MPS;
+    let a = chirp.speed_of_sound_mps;
+    if !(a.is_finite() && (lo..=hi).contains(&a)) {
+        return Err(Error::Field {
+            field: "speed_of_sound",
+            reason: format!("must be between {lo} and {hi} m/s (air: about 343), got {a}"),
+        });
+    }
+    if x.iter().all(|v| *v == 0.0) {
+        return Err(Error::Invalid("the channel is silent (every sample is zero)".into()));
+    }
+    let sweep = LinearChirp::new(chirp.f_start_hz, chirp.f_end_hz, chirp.duration_s)?;
+    let tpl = ChirpTemplate::new(sweep, sample_rate_hz)?;
+    if tpl.len() > x.len() {
+        return Err(Error::Field {
+            field: "duration",
+            reason: format!(
+                "the chirp ({} s) is longer than the recording ({:.3} s)",
+                chirp.duration_s,
+                x.len() as f64 / sample_rate_hz
+            ),
+        });
+    }
+    paper_highpass(sample_rate_hz)?.filter_in_place(&mut x);
+    let mut lim = RangeLimits::for_chirp(chirp.duration_s, a);
+    if let Some(m) = chirp.max_delta_d_m {
+        if !(m.is_finite() && m > lim.min_delta_d_m) {
+            return Err(Error::Field { field: "max_delta_d", reason: format!("must be > {} m", lim.min_delta_d_m) });
+        }
+        // A reflection later than one chirp no longer overlaps its direct
+        // sound, and the search window would reach the next chirp.
+        let most = a * chirp.duration_s;
+        if m > most {
+            return Err(Error::Field {
+                field: "max_delta_d",
+                reason: format!(
+                    "{m} m is longer than a·T = {most:.1} m (speed of sound × chirp duration); echoes that late are \
+                     not ranged"
+                ),
+            });
+        }
+        lim.max_delta_d_m = m;
+    }
+    let duration_s = x.len() as f64 / sample_rate_hz;
+    Ok(Prepared { x, tpl, lim, sample_rate_hz, duration_s })
+}
+
+/// Where the speaker and the microphone stand, and optionally the wall.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RangeGeometry {
+    /// Speaker position (m).
+    pub speaker: Point,
+    /// Microphone position (m).
+    pub mic: Point,
+    /// Direction from the speaker toward the wall; adds wall distances.
+    pub wall_normal: Option<Point>,
+}
+
+impl RangeGeometry {
+    /// Refuses coincident speaker and microphone and a zero wall normal.
+    pub fn validate(&self) -> Result<()> {
+        if self.speaker.dist(self.mic) < 1e-9 {
+            return Err(Error::Invalid(format!(
+                "speaker and mic are the same point ({}, {}); the direct distance must be > 0",
+                self.speaker.x, self.speaker.y
+            )));
+        }
+        if let Some(n) = self.wall_normal {
+            if !(n.x.is_finite() && n.y.is_finite() && n.x.hypot(n.y) >= 1e-12) {
+                return Err(Error::Invalid("the wall normal must be finite and not zero".into()));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Wall-distance statistics of one method (present with a wall normal).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct WallStats {
+    /// Median speaker-to-wall distance (m).
+    pub wall_distance_median: Option<f64>,
+    /// Its 95 % confidence interval (order statistics).
+    pub wall_distance_ci95: Option<[f64; 2]>,
+}
+
+/// One method's result over all chirps (paper Fig. 9: median and 95 % CI).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct MethodSummary {
+    /// `gap`, `matched` or `dechirp`.
+    pub method: &'static str,
+    /// Chirps detected.
+    pub chirps: usize,
+    /// Chirps with a reflection found.
+    pub estimates: usize,
+    /// Median Δd (m).
+    pub delta_d_median: Option<f64>,
+    /// Its 95 % confidence interval.
+    pub delta_d_ci95: Option<[f64; 2]>,
+    /// Wall distances, with a wall normal.
+    #[serde(flatten)]
+    pub wall: Option<WallStats>,
+}
+
+/// Every chirp of a recording, ranged by one or more methods.
+#[derive(Debug, Clone)]
+pub struct RangeReport {
+    /// The methods, in the order of the per-chirp estimates.
+    pub methods: Vec<Method>,
+    /// Per method, one row per detected chirp.
+    pub per_method: Vec<Vec<ChirpResult>>,
+    /// Per method, the summary.
+    pub summaries: Vec<MethodSummary>,
+    /// Detections with their estimates (one per method).
+    pub chirps: Vec<RangedChirp>,
+    /// The gap method's resolution floor for this chirp (m).
+    pub gap_resolution_floor_m: f64,
+}
+
+/// Detects every chirp and ranges each one with every method (paper §IV.A).
+pub fn range(prep: &Prepared, methods: &[Method], geom: &RangeGeometry) -> Result<RangeReport> {
+    geom.validate()?;
+    if methods.is_empty() {
+        return Err(Error::Invalid("no ranging method given".into()));
+    }
+    let chirps = range_signal(&prep.x, &prep.tpl, methods, &prep.lim)?;
+    let fs = prep.sample_rate_hz;
+    let per_method: Vec<Vec<ChirpResult>> = (0..methods.len())
+        .map(|k| {
+            chirps
+                .iter()
+                .enumerate()
+                .map(|(i, (d, e))| ChirpResult { index: i, onset_s: d.onset_sample as f64 / fs, estimate: e[k] })
+                .collect()
+        })
+        .collect();
+    let summaries = per_method.iter().zip(methods).map(|(rows, &m)| summarise(m, rows, geom)).collect();
+    Ok(RangeReport {
+        methods: methods.to_vec(),
+        per_method,
+        summaries,
+        chirps,
+        gap_resolution_floor_m: gap_floor_m(&prep.tpl, prep.lim.speed_of_sound_mps),
+    })
+}
+
+/// The speaker-to-wall distance of one Δd, with a wall normal.
+pub fn wall_distance(geom: &RangeGeometry, delta_d_m: f64) -> Option<f64> {
+    geom.wall_normal.and_then(|n| wall_distance_m(geom.speaker, geom.mic, n, delta_d_m))
+}
+
+fn summarise(method: Method, rows: &[ChirpResult], geom: &RangeGeometry) -> MethodSummary {
+    let dds: Vec<f64> = rows.iter().filter_map(|r| r.estimate.map(|e| e.delta_d_m)).collect();
+    let wall = geom.wall_normal.map(|_| {
+        let ws: Vec<f64> = dds.iter().filter_map(|&d| wall_distance(geom, d)).collect();
+        WallStats { wall_distance_median: median(&ws), wall_distance_ci95: median_ci95(&ws) }
+    });
+    MethodSummary {
+        method: method.name(),
+        chirps: rows.len(),
+        estimates: dds.len(),
+        delta_d_median: median(&dds),
+        delta_d_ci95: median_ci95(&dds),
+        wall,
+    }
+}
+
+/// A listener's positions over time, linearly interpolated between poses.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PoseTrack {
+    rows: Vec<(f64, Point)>,
+}
+
+impl PoseTrack {
+    /// Poses `(t_s, position)`: finite, strictly increasing times (a repeated
+    /// time with the same position is kept once; with another position it is
+    /// a conflict).
+    pub fn new(mut rows: Vec<(f64, Point)>) -> Result<Self> {
+        if rows.is_empty() {
+            return Err(Error::Invalid("no poses".into()));
+        }
+        if let Some((t, p)) = rows.iter().find(|(t, p)| !(t.is_finite() && p.x.is_finite() && p.y.is_finite())) {
+            return Err(Error::Invalid(format!("pose at t = {t} s, ({}, {}) is not finite", p.x, p.y)));
+        }
+        rows.sort_by(|a, b| a.0.total_cmp(&b.0));
+        rows.dedup_by(|b, a| a.0 == b.0 && a.1 == b.1);
+        if let Some(w) = rows.windows(2).find(|w| w[0].0 == w[1].0) {
+            return Err(Error::Invalid(format!("two different poses at t = {} s", w[0].0)));
+        }
+        Ok(Self { rows })
+    }
+
+    /// The poses, sorted by time.
+    pub fn rows(&self) -> &[(f64, Point)] {
+        &self.rows
+    }
+
+    /// First and last pose times (s).
+    pub fn span(&self) -> (f64, f64) {
+        (self.rows.first().map_or(0.0, |r| r.0), self.rows.last().map_or(0.0, |r| r.0))
+    }
+
+    /// Position at `t_s`; `None` outside the poses' span.
+    pub fn at(&self, t_s: f64) -> Option<Point> {
+        let k = self.rows.partition_point(|r| r.0 <= t_s);
+        if k == 0 {
+            return None;
+        }
+        let (t0, p0) = self.rows[k - 1];
+        let Some(&(t1, p1)) = self.rows.get(k) else {
+            return (t_s - t0 < 1e-9).then_some(p0);
+        };
+        let u = (t_s - t0) / (t1 - t0);
+        Some(p0 + (p1 - p0) * u)
+    }
+}
+
+/// How a moving listener's recording is cut into measurements.
+pub type FrameParams = chirpmap_audio::frames::FrameParams;
+
+/// Echoes of a moving listener's recording, with what was skipped.
+#[derive(Debug, Clone)]
+pub struct RecordingEchoes {
+    /// One echo per reflection per measurement frame.
+    pub echoes: Vec<Echo>,
+    /// Chirps detected in the recording.
+    pub chirps: usize,
+    /// Chirps skipped because the poses do not cover them.
+    pub chirps_without_pose: usize,
+}
+
+/// Detects the chirps, then makes one measurement per period at the
+/// listener's pose (paper §V.A's sampling period on a real recording).
+pub fn echoes_from_recording(prep: &Prepared, poses: &PoseTrack, params: &FrameParams) -> Result<RecordingEchoes> {
+    let mut cache = chirpmap_audio::spectrum::FftCache::default();
+    let dets = chirpmap_audio::detect_chirps(
+        &prep.x,
+        &prep.tpl,
+        &mut cache,
+        prep.lim.max_delta_d_m / prep.lim.speed_of_sound_mps,
+    )?;
+    let fs = prep.sample_rate_hz;
+    let covered = dets.iter().filter(|d| poses.at(d.onset_sample as f64 / fs).is_some()).count();
+    if covered == 0 {
+        let (p0, p1) = poses.span();
+        let t_end = |d: &chirpmap_audio::Detection| (d.onset_sample + prep.tpl.len()) as f64 / fs;
+        return Err(Error::Invalid(format!(
+            "the poses span {p0:.3}–{p1:.3} s but the recording spans 0–{:.3} s and its {} chirp(s) lie at \
+             {:.3}–{:.3} s: no chirp has a pose (wrong poses file?)",
+            prep.duration_s,
+            dets.len(),
+            dets.first().map_or(0.0, |d| d.onset_sample as f64 / fs),
+            dets.last().map_or(0.0, t_end),
+        )));
+    }
+    let pose_at = |t: f64| poses.at(t);
+    let echoes = chirpmap_audio::frames::extract_echoes(&prep.x, &prep.tpl, &prep.lim, &dets, &pose_at, params)?;
+    Ok(RecordingEchoes { echoes, chirps: dets.len(), chirps_without_pose: dets.len() - covered })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pose_track_interpolates_and_refuses_conflicts() {
+        let t = PoseTrack::new(vec![(1.0, Point::new(2.0, 0.0)), (0.0, Point::new(0.0, 0.0))]).expect("valid");
+        assert_eq!(t.at(0.5), Some(Point::new(1.0, 0.0)));
+        assert_eq!(t.at(-0.1), None);
+        assert_eq!(t.at(1.5), None);
+        assert_eq!(t.span(), (0.0, 1.0));
+        assert!(PoseTrack::new(vec![(0.0, Point::new(0.0, 0.0)), (0.0, Point::new(1.0, 0.0))]).is_err());
+        assert!(PoseTrack::new(vec![(0.0, Point::new(0.0, 0.0)), (0.0, Point::new(0.0, 0.0))]).is_ok());
+        assert!(PoseTrack::new(vec![(f64::NAN, Point::new(0.0, 0.0))]).is_err());
+    }
+
+    #[test]
+    fn chirp_defaults_agree_with_the_scene() {
+        let c = ChirpSpec::default();
+        let s = Scene::default();
+        assert_eq!((c.f_start_hz, c.f_end_hz, c.duration_s), (s.chirp.f_start, s.chirp.f_end, s.chirp.duration));
+    }
+}
