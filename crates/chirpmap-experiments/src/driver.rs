@@ -72,6 +72,69 @@ pub fn read_sweep_def(dir: &Path) -> Result<(String, SweepDef), ExperimentError>
     Ok((text, def))
 }
 
+/// `shard.txt` of a merged output: the whole sweep.
+const MERGED_SHARD: &str = "0/1\n";
+
+fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), ExperimentError> {
+    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let tmp = path.with_file_name(format!(".{name}.tmp"));
+    std::fs::write(&tmp, bytes).map_err(|e| ExperimentError::io(&tmp, e))?;
+    std::fs::rename(&tmp, path).map_err(|e| ExperimentError::io(path, e))
+}
+
+/// Whether two existing paths are the same directory: same canonical path,
+/// or (on Unix) the same device and inode, so `./s0`, `s0/` and a symlink to
+/// it are all recognised.
+fn same_dir(a: &Path, b: &Path) -> bool {
+    let (Ok(ca), Ok(cb)) = (std::fs::canonicalize(a), std::fs::canonicalize(b)) else { return false };
+    if ca == cb {
+        return true;
+    }
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::MetadataExt;
+        if let (Ok(ma), Ok(mb)) = (std::fs::metadata(a), std::fs::metadata(b)) {
+            return ma.dev() == mb.dev() && ma.ino() == mb.ino();
+        }
+    }
+    false
+}
+
+/// Refuses a merge `--out` that is one of the inputs, or that holds anything
+/// but nothing at all or an earlier merge of this same sweep (issue 8, item
+/// 4: `merge s0 s1 --out other` overwrote another sweep, `--out s0`
+/// rewrote a shard's shard.txt). `run_sweep` refuses the same way.
+fn check_merge_out(inputs: &[&Path], out: &Path, sweep_text: &str) -> Result<(), ExperimentError> {
+    if !out.exists() {
+        return Ok(());
+    }
+    if !out.is_dir() {
+        return Err(ExperimentError::file(out, "exists and is not a directory; merge writes a directory"));
+    }
+    if let Some(input) = inputs.iter().find(|d| same_dir(d, out)) {
+        return Err(ExperimentError::Merge(format!(
+            "--out {} is the input shard directory {}; merge into a new directory",
+            out.display(),
+            input.display()
+        )));
+    }
+    let refuse = |why: &str| {
+        Err(ExperimentError::Merge(format!("--out {} {why}; merge into a new or empty directory", out.display())))
+    };
+    match std::fs::read_to_string(out.join(SWEEP_FILE)) {
+        Ok(text) if text != sweep_text => refuse("holds another sweep (its sweep.toml differs)"),
+        Ok(_) => match std::fs::read_to_string(out.join(SHARD_FILE)) {
+            Ok(shard) if shard == MERGED_SHARD => Ok(()),
+            Ok(shard) => refuse(&format!("holds shard {} of this sweep, not a merged output", shard.trim())),
+            Err(_) => refuse("holds a sweep.toml without shard.txt, not a merged output"),
+        },
+        Err(_) => {
+            let mut entries = std::fs::read_dir(out).map_err(|e| ExperimentError::io(out, e))?;
+            if entries.next().is_some() { refuse("is not empty and holds no sweep") } else { Ok(()) }
+        }
+    }
+}
+
 /// Problems found while merging.
 #[derive(Debug, Default)]
 pub struct MergeReport {
@@ -89,6 +152,7 @@ pub fn merge(
 ) -> Result<(Outcome, MergeReport), ExperimentError> {
     let first = inputs.first().ok_or_else(|| ExperimentError::Merge("no input directories".into()))?;
     let (text0, def0) = read_sweep_def(first)?;
+    check_merge_out(inputs, out, &text0)?;
     for d in &inputs[1..] {
         let (text, def) = read_sweep_def(d)?;
         if text != text0 {
@@ -122,10 +186,10 @@ pub fn merge(
     }
     report.missing = plan.jobs().into_iter().filter(|j| !rows.contains_key(j)).collect();
     std::fs::create_dir_all(out).map_err(|e| ExperimentError::io(out, e))?;
-    let sweep_path = out.join(SWEEP_FILE);
-    std::fs::write(&sweep_path, &text0).map_err(|e| ExperimentError::io(&sweep_path, e))?;
-    let shard_path = out.join(SHARD_FILE);
-    std::fs::write(&shard_path, "0/1\n").map_err(|e| ExperimentError::io(&shard_path, e))?;
+    // Checked again now that `out` exists (a symlink or a race could make it an input).
+    check_merge_out(inputs, out, &text0)?;
+    write_atomic(&out.join(SWEEP_FILE), text0.as_bytes())?;
+    write_atomic(&out.join(SHARD_FILE), MERGED_SHARD.as_bytes())?;
     let rows: Vec<RunRow> = rows.into_values().collect();
     write_sorted(&out.join(RUNS_FILE), &plan, &rows)?;
     let summaries = write_summaries(out, &plan, &rows)?;

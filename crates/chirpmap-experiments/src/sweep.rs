@@ -101,8 +101,10 @@ pub struct Plan {
 }
 
 impl SweepDef {
+    /// Parses a sweep file; errors quote a short excerpt of the offending
+    /// line ([`chirpmap_core::error::toml_error`]).
     pub fn from_toml_str(text: &str) -> Result<Self, ExperimentError> {
-        toml::from_str(text).map_err(|e| ExperimentError::InvalidSweep(e.to_string()))
+        toml::from_str(text).map_err(|e| ExperimentError::InvalidSweep(chirpmap_core::error::toml_error(text, &e)))
     }
 
     pub fn to_toml_string(&self) -> String {
@@ -113,8 +115,8 @@ impl SweepDef {
     /// `validate` gets every resolved scene (e.g. the simulator's own checks).
     pub fn plan(&self, validate: impl Fn(&Scene) -> Result<(), String>) -> Result<Plan, ExperimentError> {
         let err = |m: String| ExperimentError::InvalidSweep(m);
-        if self.runs == 0 {
-            return Err(err("runs must be at least 1".into()));
+        if self.runs == 0 || self.runs > MAX_RUNS {
+            return Err(err(format!("runs must be in 1..={MAX_RUNS}, got {}", self.runs)));
         }
         if self.params.is_empty() {
             return Err(err("no parameters to vary (params is empty)".into()));
@@ -144,7 +146,15 @@ impl SweepDef {
                 return Err(err(format!("parameter name {:?} is reserved or not a valid column", p.name)));
             }
         }
-        let n_configs: usize = self.params.iter().map(|p| p.values.len()).product();
+        let n_configs = self
+            .params
+            .iter()
+            .try_fold(1usize, |n, p| n.checked_mul(p.values.len()))
+            .filter(|&n| n <= MAX_CONFIGS)
+            .ok_or_else(|| {
+                err(format!("more than {MAX_CONFIGS} configurations (the product of the values' counts)"))
+            })?;
+        self.check_size(n_configs)?;
         let mut configs = Vec::with_capacity(n_configs);
         for index in 0..n_configs {
             let mut rem = index;
@@ -164,10 +174,56 @@ impl SweepDef {
             let mut scene: Scene = value.try_into().map_err(|e| err(format!("configuration {index}: {e}")))?;
             scene.seed = self.seed;
             let labels: Vec<String> = self.params.iter().zip(&choice).map(|(p, &c)| p.label(c)).collect();
+            scene.validate().map_err(|e| err(format!("configuration {index} ({}): {e}", labels.join(", "))))?;
             validate(&scene).map_err(|m| err(format!("configuration {index} ({}): {m}", labels.join(", "))))?;
             configs.push(Config { index, choice, labels, scene });
         }
         Ok(Plan { def: self.clone(), configs })
+    }
+}
+
+/// Most runs per configuration: the paper uses 100; 10⁶ is already weeks of
+/// simulation. `--runs 18446744073709551615` panicked (issue 8, item 8).
+pub const MAX_RUNS: u64 = 1_000_000;
+/// Most configurations of one sweep (each holds a scene).
+pub const MAX_CONFIGS: usize = 100_000;
+/// Most runs of a whole sweep (configurations × runs).
+pub const MAX_JOBS: u64 = 10_000_000;
+/// Cap on the estimated memory of a sweep's runs table (bytes).
+pub const RUNS_MEMORY_CAP_BYTES: u64 = 2 << 30;
+
+impl SweepDef {
+    /// Estimated peak memory (bytes) of the runs table of a sweep of
+    /// `n_configs` configurations: per run, the job lists (plan, shard and
+    /// to-do: 3 × 16 bytes), the row twice (the resume map and the sorted
+    /// copy: 2 × (96 bytes + 24 per label + the labels' text, with 50 %
+    /// map overhead)) and its CSV line (~100 bytes + labels). Measured rows
+    /// of the paper's tables are about 60 bytes of CSV, so this is generous.
+    pub fn runs_memory_bytes(&self, n_configs: usize) -> u128 {
+        let labels: usize =
+            self.params.iter().map(|p| 24 + (0..p.values.len()).map(|k| p.label(k).len()).max().unwrap_or(0)).sum();
+        let per_row = 3 * 16 + 3 * (96 + labels) + 100 + labels;
+        u128::from(self.runs) * n_configs as u128 * per_row as u128
+    }
+
+    /// Bounds the total runs and their memory before anything is expanded,
+    /// allocated or written (sweep.toml included).
+    fn check_size(&self, n_configs: usize) -> Result<(), ExperimentError> {
+        let jobs = u128::from(self.runs) * n_configs as u128;
+        if jobs > u128::from(MAX_JOBS) {
+            return Err(ExperimentError::InvalidSweep(format!(
+                "{n_configs} configurations × {} runs = {jobs} runs, more than the cap of {MAX_JOBS}; lower --runs",
+                self.runs
+            )));
+        }
+        let bytes = self.runs_memory_bytes(n_configs);
+        if bytes > u128::from(RUNS_MEMORY_CAP_BYTES) {
+            return Err(ExperimentError::InvalidSweep(format!(
+                "the table of {jobs} runs would need about {bytes} bytes of memory, more than the cap of \
+                 {RUNS_MEMORY_CAP_BYTES} bytes; lower --runs"
+            )));
+        }
+        Ok(())
     }
 }
 

@@ -131,3 +131,94 @@ fn foreign_directories_are_refused() {
     let e = merge(&[d.as_path(), d2.as_path()], &tmp.path().join("m"), |d| d.plan(|_| Ok(()))).unwrap_err();
     assert!(e.to_string().contains("different seed"), "{e}");
 }
+
+/// Issue 8, item 4: merge refuses an `--out` that holds another sweep, one of
+/// its inputs (however spelled) or a user's files, and changes none of them.
+#[test]
+fn merge_never_writes_over_another_sweep_or_an_input() {
+    let def = SweepDef::from_toml_str(SWEEP).unwrap();
+    let plan = def.plan(|_| Ok(())).unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let dirs: Vec<_> = (0..2).map(|i| tmp.path().join(format!("s{i}"))).collect();
+    for (i, d) in dirs.iter().enumerate() {
+        run_sweep(&plan, d, Shard { index: i, count: 2 }, 1, fake, |_, _| {}).unwrap();
+    }
+    let inputs: Vec<&Path> = dirs.iter().map(|d| d.as_path()).collect();
+    let plan_of = |d: &SweepDef| d.plan(|_| Ok(()));
+    let snapshot = |d: &Path| -> Vec<(String, Vec<u8>)> {
+        let mut v: Vec<_> = std::fs::read_dir(d)
+            .unwrap()
+            .map(|e| {
+                let e = e.unwrap();
+                (e.file_name().to_string_lossy().into_owned(), std::fs::read(e.path()).unwrap())
+            })
+            .collect();
+        v.sort();
+        v
+    };
+
+    // Another sweep's directory.
+    let other_plan = SweepDef::from_toml_str(&SWEEP.replace("seed = 3", "seed = 9")).unwrap().plan(|_| Ok(())).unwrap();
+    let other = tmp.path().join("other");
+    run_sweep(&other_plan, &other, Shard::ALL, 1, fake, |_, _| {}).unwrap();
+    let before = snapshot(&other);
+    let e = merge(&inputs, &other, plan_of).unwrap_err().to_string();
+    assert!(e.contains("holds another sweep"), "{e}");
+    assert_eq!(snapshot(&other), before);
+
+    // One of the inputs, also spelled differently.
+    let before = snapshot(&dirs[0]);
+    let dotted = tmp.path().join(".").join("s0");
+    for out in [dirs[0].clone(), dotted, tmp.path().join("s1/../s0")] {
+        let e = merge(&inputs, &out, plan_of).unwrap_err().to_string();
+        assert!(e.contains("is the input shard directory"), "{}: {e}", out.display());
+    }
+    assert_eq!(snapshot(&dirs[0]), before);
+
+    // A shard of this sweep that is not an input, and a user's directory.
+    let s2 = tmp.path().join("s0b");
+    run_sweep(&plan, &s2, Shard { index: 0, count: 2 }, 1, fake, |_, _| {}).unwrap();
+    let e = merge(&inputs, &s2, plan_of).unwrap_err().to_string();
+    assert!(e.contains("holds shard 0/2"), "{e}");
+    let user = tmp.path().join("user");
+    std::fs::create_dir(&user).unwrap();
+    std::fs::write(user.join("summary.csv"), "mine").unwrap();
+    let e = merge(&inputs, &user, plan_of).unwrap_err().to_string();
+    assert!(e.contains("not empty"), "{e}");
+    assert_eq!(std::fs::read_to_string(user.join("summary.csv")).unwrap(), "mine");
+    let file = tmp.path().join("file");
+    std::fs::write(&file, "x").unwrap();
+    assert!(merge(&inputs, &file, plan_of).is_err());
+    assert_eq!(std::fs::read_to_string(&file).unwrap(), "x");
+
+    // A new directory, and again into the same merged output: fine.
+    let merged = tmp.path().join("merged");
+    merge(&inputs, &merged, plan_of).unwrap();
+    let (o, _) = merge(&inputs, &merged, plan_of).unwrap();
+    assert_eq!(o.rows.len(), 42);
+}
+
+/// Issue 8, item 8: absurd run counts are refused by the plan, before any
+/// allocation and before sweep.toml is written.
+#[test]
+fn run_counts_are_bounded_before_any_work() {
+    let tmp = tempfile::tempdir().unwrap();
+    for runs in [u64::MAX, 1_000_000_000, 10_000_000, 2_000_000] {
+        let mut def = SweepDef::from_toml_str(SWEEP).unwrap();
+        def.runs = runs;
+        let started = std::time::Instant::now();
+        let e = def.plan(|_| Ok(())).unwrap_err().to_string();
+        assert!(started.elapsed().as_secs_f64() < 1.0);
+        assert!(e.contains("runs"), "{runs}: {e}");
+    }
+    // Within the per-configuration cap but beyond the memory estimate's cap.
+    let mut def = SweepDef::from_toml_str(SWEEP).unwrap();
+    def.runs = 1_000_000;
+    let e = def.plan(|_| Ok(())).unwrap_err().to_string();
+    assert!(e.contains("bytes of memory") || e.contains("cap of 10000000"), "{e}");
+    assert!(std::fs::read_dir(tmp.path()).unwrap().next().is_none());
+    // A corrupt sweep file is quoted as a short excerpt, once.
+    let big = format!("name = \"{}\" x\n", "n".repeat(1_000_000));
+    let e = SweepDef::from_toml_str(&big).unwrap_err().to_string();
+    assert!(e.len() < 300, "{} chars", e.len());
+}
