@@ -299,7 +299,7 @@ mod tests {
                 for i in 0..nx {
                     let j = ny - 1 - r;
                     let p = if max > 0.0 { g.get(i, j) / max } else { 0.0 };
-                    let want = (255.0 - 255.0 * p).round() as u8;
+                    let want = (255.0 * (1.0 - p)).round() as u8;
                     prop_assert_eq!(m.pgm[head + r * nx + i], want);
                     // map_server's reading of the grey level gives back the occupancy.
                     prop_assert!(((255.0 - f64::from(want)) / 255.0 - p).abs() <= 0.5 / 255.0 + 1e-12);

@@ -1,16 +1,25 @@
-//! PNG plots (plotters, bitmap backend, bundled DejaVu Sans so plots render
-//! the same on machines without system fonts).
+//! Figures: PNG (plotters' bitmap backend) or SVG (vector; chosen by a path
+//! ending in `.svg`), with the bundled DejaVu Sans so text renders the same on
+//! machines without system fonts.
+//!
+//! Conventions for every figure (issue 13): exact perceptual colour maps
+//! ([`ColourMap`], from the `colorous` crate's ports of matplotlib's
+//! viridis/inferno/cividis, van der Walt & Smith 2015; Nuñez et al. 2018),
+//! tick labels as people write them ([`tick_label`]: "50", not "50.0") and, on
+//! maps, metres at a 1:1 aspect ratio for any grid shape.
 
 use anyhow::{Result, anyhow};
 use chirpmap_core::{Grid, Highlight, Obstacle, Point, Shape};
+use plotters::coord::Shift;
 use plotters::prelude::*;
+use plotters::style::text_anchor::{HPos, Pos, VPos};
 use plotters::style::{FontStyle, register_font};
 use std::path::Path;
 use std::sync::Once;
 
 static FONT: &[u8] = include_bytes!("../../../assets/DejaVuSans.ttf");
 
-/// Registers the bundled font once; plotters' `ab_glyph` backend needs it.
+/// Registers the bundled font once; plotters' `ab_glyph` text needs it.
 pub fn ensure_font() {
     static ONCE: Once = Once::new();
     ONCE.call_once(|| {
@@ -19,29 +28,109 @@ pub fn ensure_font() {
     });
 }
 
-fn plot_err<E: std::fmt::Display>(e: E) -> anyhow::Error {
+pub(crate) fn plot_err<E: std::fmt::Display>(e: E) -> anyhow::Error {
     anyhow!("plotting failed: {e}")
 }
 
-/// Colour for t ∈ [0, 1] on a perceptually ordered dark-to-bright ramp
-/// (an approximation of "inferno").
-pub fn heat_colour(t: f64) -> RGBColor {
-    const STOPS: [(f64, [f64; 3]); 6] = [
-        (0.0, [252.0, 255.0, 164.0]),
-        (0.2, [249.0, 187.0, 54.0]),
-        (0.4, [234.0, 108.0, 34.0]),
-        (0.6, [186.0, 54.0, 85.0]),
-        (0.8, [107.0, 23.0, 110.0]),
-        (1.0, [20.0, 11.0, 53.0]),
-    ];
-    let t = t.clamp(0.0, 1.0);
-    let k = STOPS.iter().position(|s| s.0 >= t).unwrap_or(STOPS.len() - 1).max(1);
-    let (t0, c0) = STOPS[k - 1];
-    let (t1, c1) = STOPS[k];
-    let u = if t1 > t0 { (t - t0) / (t1 - t0) } else { 0.0 };
-    let mix = |a: f64, b: f64| (a + (b - a) * u).round() as u8;
-    RGBColor(mix(c0[0], c1[0]), mix(c0[1], c1[1]), mix(c0[2], c1[2]))
+/// Whether `path` asks for vector output (`.svg`, any case); everything else
+/// is written as a bitmap in the format its extension names (PNG normally).
+pub fn is_svg(path: &Path) -> bool {
+    path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("svg"))
 }
+
+/// Runs `$draw(root)` on an SVG or a bitmap drawing area of `$size` pixels
+/// at `$path`, by [`is_svg`]; `$draw` must be generic over the backend.
+macro_rules! with_backend {
+    ($path:expr, $size:expr, $draw:expr) => {{
+        let path: &std::path::Path = $path;
+        if $crate::plot::is_svg(path) {
+            $draw(plotters::prelude::SVGBackend::new(path, $size).into_drawing_area())
+        } else {
+            $draw(plotters::prelude::BitMapBackend::new(path, $size).into_drawing_area())
+        }
+    }};
+}
+#[allow(unused_imports)] // used by plot_audio and plot_summary
+pub(crate) use with_backend;
+
+/// Tick label as a person writes it: no trailing zeros ("50", "0.25",
+/// "-1.5"), no "-0" (|v| < 1e-12 is 0), at most 6 decimals; scientific only
+/// for tiny or huge magnitudes ("1e-7", "2.5e9").
+pub fn tick_label(v: f64) -> String {
+    if !v.is_finite() {
+        return format!("{v}");
+    }
+    let a = v.abs();
+    // Tick arithmetic leaves residues like -2.8e-17 where 0 is meant.
+    if a < 1e-12 {
+        return "0".to_string();
+    }
+    if !(1e-4..1e9).contains(&a) {
+        let s = format!("{v:.3e}");
+        let (m, e) = s.split_once('e').unwrap_or((&s, "0"));
+        let m = m.trim_end_matches('0').trim_end_matches('.');
+        return format!("{m}e{e}");
+    }
+    let s = format!("{v:.6}");
+    let s = s.trim_end_matches('0').trim_end_matches('.');
+    if s == "-0" { "0".to_string() } else { s.to_string() }
+}
+
+/// Label of a power of ten on a log axis, "10⁻³" (empty for other values, so
+/// only decades are labelled).
+pub fn decade_label(v: f64) -> String {
+    if !(v.is_finite() && v > 0.0) {
+        return String::new();
+    }
+    let e = v.log10().round();
+    if (v / 10f64.powf(e) - 1.0).abs() > 1e-6 {
+        return String::new();
+    }
+    const SUP: [char; 10] = ['⁰', '¹', '²', '³', '⁴', '⁵', '⁶', '⁷', '⁸', '⁹'];
+    let digits: String =
+        (e.abs() as i64).to_string().chars().map(|c| SUP[c.to_digit(10).unwrap_or(0) as usize]).collect();
+    format!("10{}{digits}", if e < 0.0 { "⁻" } else { "" })
+}
+
+/// A perceptually uniform colour map (exact: `colorous` samples matplotlib's
+/// 256-entry tables for viridis and inferno; cividis is Nuñez et al.'s fit).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum ColourMap {
+    /// Dark blue-purple → green → yellow; the default for maps.
+    #[default]
+    Viridis,
+    /// Black → red → yellow; the default for spectrograms.
+    Inferno,
+    /// Blue → yellow, readable with colour-vision deficiency.
+    #[allow(dead_code)] // offered to the commands (issue 13); no command picks it yet
+    Cividis,
+}
+
+impl ColourMap {
+    /// Colour at `t` ∈ [0, 1] (clamped; NaN gives the low end).
+    pub fn eval(self, t: f64) -> RGBColor {
+        let t = if t.is_nan() { 0.0 } else { t.clamp(0.0, 1.0) };
+        let g = match self {
+            Self::Viridis => colorous::VIRIDIS,
+            Self::Inferno => colorous::INFERNO,
+            Self::Cividis => colorous::CIVIDIS,
+        };
+        let c = g.eval_continuous(t);
+        RGBColor(c.r, c.g, c.b)
+    }
+}
+
+// Overlay colours chosen to stand out on every part of viridis (which has no
+// red, white or light cyan) and to stay apart from each other.
+const HIGHLIGHT: RGBColor = RGBColor(230, 30, 40);
+const OBSTACLE: RGBColor = WHITE;
+const LISTENER: RGBColor = RGBColor(120, 230, 255);
+const SURFACE: RGBColor = RGBColor(255, 140, 0);
+
+/// A surface an evidence mapper reports: a wall segment from `.0` to `.1`
+/// (a point when both are equal), in metres, and whether it is ambiguous
+/// (e.g. one of a mirror pair a straight pass cannot tell apart).
+pub type Surface = ((f64, f64), (f64, f64), bool);
 
 /// Everything drawn on a map figure (paper Fig. 4).
 #[derive(Debug)]
@@ -57,6 +146,20 @@ pub struct MapPlot<'a> {
     pub obstacles: &'a [Obstacle],
 }
 
+/// Optional extras of a map figure; `Default` draws what [`render_map`] draws.
+// Used once the commands pass surfaces / a colour map (issue 13).
+#[allow(dead_code)]
+#[derive(Debug, Clone, Copy, Default)]
+pub struct MapStyle<'a> {
+    /// Wall segments and points reported by an evidence mapper: solid orange
+    /// lines (dashed when ambiguous), points as crosses.
+    pub surfaces: &'a [Surface],
+    /// Colour scale of the grid values.
+    pub colour_map: ColourMap,
+    /// Label of the colour bar (default "accumulated weight").
+    pub value_label: Option<&'a str>,
+}
+
 fn outline(shape: &Shape) -> Vec<(f64, f64)> {
     match shape {
         Shape::Circle(c) => (0..=120)
@@ -67,148 +170,425 @@ fn outline(shape: &Shape) -> Vec<(f64, f64)> {
             .collect(),
         Shape::Polygon(p) => {
             let mut v: Vec<(f64, f64)> = p.vertices().iter().map(|v| (v.x, v.y)).collect();
-            v.push(v[0]);
+            if let Some(&first) = v.first() {
+                v.push(first);
+            }
             v
         }
     }
 }
 
+/// The part of segment `a`–`b` inside the box `x` × `y` (Liang & Barsky
+/// 1984), or `None` when it misses the box.
+fn clip_segment(a: (f64, f64), b: (f64, f64), x: (f64, f64), y: (f64, f64)) -> Option<((f64, f64), (f64, f64))> {
+    let (dx, dy) = (b.0 - a.0, b.1 - a.1);
+    let (mut t0, mut t1) = (0.0f64, 1.0f64);
+    for (p, q) in [(-dx, a.0 - x.0), (dx, x.1 - a.0), (-dy, a.1 - y.0), (dy, y.1 - a.1)] {
+        if p == 0.0 {
+            if q < 0.0 {
+                return None;
+            }
+        } else {
+            let r = q / p;
+            if p < 0.0 {
+                t0 = t0.max(r);
+            } else {
+                t1 = t1.min(r);
+            }
+        }
+    }
+    (t0 <= t1).then(|| ((a.0 + t0 * dx, a.1 + t0 * dy), (a.0 + t1 * dx, a.1 + t1 * dy)))
+}
+
+/// `path` cut to the box: the runs of it that lie inside, so nothing outside
+/// the axes is drawn (plotters would pin outside points to the border).
+fn clip_path(path: &[(f64, f64)], x: (f64, f64), y: (f64, f64)) -> Vec<Vec<(f64, f64)>> {
+    let mut runs: Vec<Vec<(f64, f64)>> = Vec::new();
+    let mut current: Vec<(f64, f64)> = Vec::new();
+    for w in path.windows(2) {
+        match clip_segment(w[0], w[1], x, y) {
+            Some((p, q)) => {
+                if current.last() != Some(&p) {
+                    if current.len() > 1 {
+                        runs.push(std::mem::take(&mut current));
+                    }
+                    current.clear();
+                    current.push(p);
+                }
+                current.push(q);
+            }
+            None => {
+                if current.len() > 1 {
+                    runs.push(std::mem::take(&mut current));
+                }
+                current.clear();
+            }
+        }
+    }
+    if current.len() > 1 {
+        runs.push(current);
+    }
+    runs
+}
+
+fn inside(p: (f64, f64), x: (f64, f64), y: (f64, f64)) -> bool {
+    (x.0..=x.1).contains(&p.0) && (y.0..=y.1).contains(&p.1)
+}
+
+/// Pixel layout of a map figure: the plotting area has `plot_px` pixels and
+/// shows `x_range` × `y_range` metres at the same metres per pixel in x and y.
+#[derive(Debug, Clone, PartialEq)]
+struct MapLayout {
+    size_px: (u32, u32),
+    plot_px: (u32, u32),
+    x_range: (f64, f64),
+    y_range: (f64, f64),
+}
+
+const TITLE_H: u32 = 40;
+const MARGIN: u32 = 14;
+const X_LABELS: u32 = 48;
+const Y_LABELS: u32 = 64;
+const BAR_W: u32 = 120;
+
+/// Chooses the figure size for a `width_m` × `height_m` map: ~800 px on the
+/// long side, at least 240 px on the short side (up to 2400 px on the long
+/// one), and an exact 1:1 scale (the ranges are widened symmetrically to fill
+/// whole pixels).
+fn map_layout(x: (f64, f64), y: (f64, f64)) -> MapLayout {
+    let (wx, wy) = ((x.1 - x.0).max(1e-9), (y.1 - y.0).max(1e-9));
+    let mut s = (800.0 / wx).min(800.0 / wy);
+    if wx.min(wy) * s < 240.0 {
+        s = (240.0 / wx.min(wy)).min(2400.0 / wx.max(wy));
+    }
+    let pw = (wx * s).round().max(1.0) as u32;
+    let ph = (wy * s).round().max(1.0) as u32;
+    let m_per_px = (wx / f64::from(pw)).max(wy / f64::from(ph));
+    let half = |lo: f64, hi: f64, n: u32| {
+        let c = 0.5 * (lo + hi);
+        let h = 0.5 * m_per_px * f64::from(n);
+        (c - h, c + h)
+    };
+    MapLayout {
+        size_px: (2 * MARGIN + Y_LABELS + pw + BAR_W, TITLE_H + 2 * MARGIN + ph + X_LABELS),
+        plot_px: (pw, ph),
+        x_range: half(x.0, x.1, pw),
+        y_range: half(y.0, y.1, ph),
+    }
+}
+
+/// RGB raster (`w` × `h`, top row first) of `grid` over the world window
+/// `x_range` × `y_range`: each pixel shows the largest value among the cells
+/// it covers (so thin ellipses never vanish when a pixel spans several
+/// cells), coloured by `cmap(√(v/max))`; outside the grid stays white.
+fn grid_raster(grid: &Grid, (w, h): (u32, u32), x_range: (f64, f64), y_range: (f64, f64), cmap: ColourMap) -> Vec<u8> {
+    let spec = grid.spec;
+    let max = grid.max();
+    let mut buf = vec![255u8; (w as usize) * (h as usize) * 3];
+    if grid.data.len() != spec.len() || spec.is_empty() {
+        return buf;
+    }
+    let cells = |lo: f64, hi: f64, origin: f64, n: usize| -> Option<(usize, usize)> {
+        let a = ((lo - origin) / spec.cell_m).floor();
+        let b = ((hi - origin) / spec.cell_m).ceil();
+        if b <= 0.0 || a >= n as f64 {
+            return None;
+        }
+        let a = a.max(0.0) as usize;
+        Some((a, (b as usize).clamp(a + 1, n)))
+    };
+    let (mx, my) = ((x_range.1 - x_range.0) / f64::from(w), (y_range.1 - y_range.0) / f64::from(h));
+    let cols: Vec<Option<(usize, usize)>> = (0..w)
+        .map(|sx| {
+            let xa = x_range.0 + f64::from(sx) * mx;
+            cells(xa, xa + mx, spec.x_min_m, spec.nx)
+        })
+        .collect();
+    for sy in 0..h {
+        let yb = y_range.1 - f64::from(sy) * my;
+        let Some((j0, j1)) = cells(yb - my, yb, spec.y_min_m, spec.ny) else { continue };
+        for (sx, c) in cols.iter().enumerate() {
+            let Some((i0, i1)) = *c else { continue };
+            let mut v = 0.0f64;
+            for j in j0..j1 {
+                let row = &grid.data[j * spec.nx..(j + 1) * spec.nx];
+                v = row[i0..i1].iter().fold(v, |m, x| m.max(*x));
+            }
+            let t = if max > 0.0 { (v / max).sqrt() } else { 0.0 };
+            let col = cmap.eval(t);
+            let k = ((sy as usize) * (w as usize) + sx) * 3;
+            buf[k..k + 3].copy_from_slice(&[col.0, col.1, col.2]);
+        }
+    }
+    buf
+}
+
+/// Draws a vertical colour bar in `area`: `cmap(f(v))` for v from 0 to
+/// `top`, labelled in true values with `desc` beside it.
+pub(crate) fn colour_bar<DB: DrawingBackend>(
+    area: &DrawingArea<DB, Shift>,
+    (lo, hi): (f64, f64),
+    desc: &str,
+    colour: impl Fn(f64) -> RGBColor,
+    (margin_top, margin_bottom): (u32, u32),
+) -> Result<()>
+where
+    DB::ErrorType: 'static,
+{
+    let label_w = 46;
+    let mut bar = ChartBuilder::on(area)
+        .margin_top(margin_top)
+        .margin_bottom(margin_bottom)
+        .margin_left(10)
+        .margin_right(label_w + 28)
+        .build_cartesian_2d(0.0..1.0, lo..hi)
+        .map_err(plot_err)?;
+    let steps = 256;
+    bar.draw_series((0..steps).map(|k| {
+        let a = lo + (hi - lo) * k as f64 / steps as f64;
+        let b = lo + (hi - lo) * (k + 1) as f64 / steps as f64;
+        Rectangle::new([(0.0, a), (1.0, b)], colour(0.5 * (a + b)).filled())
+    }))
+    .map_err(plot_err)?;
+    bar.draw_series(std::iter::once(Rectangle::new([(0.0, lo), (1.0, hi)], BLACK.stroke_width(1))))
+        .map_err(plot_err)?;
+    // Ticks and labels on the right, as people write them.
+    // Pixel ranges are absolute; `area` draws relative to its own corner.
+    let (ox, oy) = area.get_base_pixel();
+    let (px, py) = bar.plotting_area().get_pixel_range();
+    let (px, py) = (px.start - ox..px.end - ox, py.start - oy..py.end - oy);
+    let n = 6;
+    let ticks = nice_ticks(lo, hi, n);
+    for v in ticks {
+        let y = py.end - 1 - ((v - lo) / (hi - lo) * f64::from(py.end - 1 - py.start)).round() as i32;
+        area.draw(&PathElement::new(vec![(px.end, y), (px.end + 5, y)], BLACK.stroke_width(1))).map_err(plot_err)?;
+        area.draw(&Text::new(
+            tick_label(v),
+            (px.end + 8, y),
+            ("sans-serif", 13).into_font().color(&BLACK).pos(Pos::new(HPos::Left, VPos::Center)),
+        ))
+        .map_err(plot_err)?;
+    }
+    let (w, h) = area.dim_in_pixel();
+    area.draw(&Text::new(
+        desc.to_string(),
+        ((px.end + label_w + 22).min(w as i32 - 4), (h / 2) as i32),
+        ("sans-serif", 14)
+            .into_font()
+            .transform(FontTransform::Rotate270)
+            .color(&BLACK)
+            .pos(Pos::new(HPos::Center, VPos::Bottom)),
+    ))
+    .map_err(plot_err)?;
+    Ok(())
+}
+
+/// Round tick values (steps of 1, 2 or 5 × 10ᵏ) inside `[lo, hi]`, about `n` of them.
+pub fn nice_ticks(lo: f64, hi: f64, n: usize) -> Vec<f64> {
+    if !(lo.is_finite() && hi.is_finite()) || hi <= lo || n == 0 {
+        return Vec::new();
+    }
+    let raw = (hi - lo) / n as f64;
+    let mag = 10f64.powf(raw.log10().floor());
+    let step = [1.0, 2.0, 5.0, 10.0].iter().map(|m| m * mag).find(|s| *s >= raw).unwrap_or(10.0 * mag);
+    let first = (lo / step).ceil() as i64;
+    let last = (hi / step + 1e-9).floor() as i64;
+    (first..=last).map(|k| k as f64 * step).collect()
+}
+
 /// Heat map of the accumulation with highlights, sources, listener path and
-/// obstacles; axes in metres and a colour bar. Colour is √(value/max) so faint
-/// single ellipses stay visible; the bar is labelled in true values.
+/// obstacles; axes in metres at 1:1 and a colour bar. Colour is √(value/max)
+/// so faint single ellipses stay visible; the bar is labelled in true values.
+/// Writes SVG when `path` ends in `.svg`, PNG otherwise.
 pub fn render_map(path: &Path, plot: &MapPlot) -> Result<()> {
+    render_map_with(path, plot, &MapStyle::default())
+}
+
+/// [`render_map`] with the extras of [`MapStyle`] (evidence-mapper surfaces,
+/// colour map, colour-bar label).
+pub fn render_map_with(path: &Path, plot: &MapPlot, style: &MapStyle) -> Result<()> {
     ensure_font();
     let spec = plot.grid.spec;
-    let (x0, x1, y0, y1) = (spec.x_min_m, spec.x_max_m(), spec.y_min_m, spec.y_max_m());
-    let plot_w = 800.0;
-    let height = ((plot_w * (y1 - y0) / (x1 - x0)) + 110.0).clamp(400.0, 1600.0) as u32;
-    let root = BitMapBackend::new(path, (1000, height)).into_drawing_area();
+    let layout = map_layout((spec.x_min_m, spec.x_max_m()), (spec.y_min_m, spec.y_max_m()));
+    with_backend!(path, layout.size_px, |root| draw_map(root, plot, style, &layout))
+}
+
+fn draw_map<DB: DrawingBackend>(
+    root: DrawingArea<DB, Shift>,
+    plot: &MapPlot,
+    style: &MapStyle,
+    layout: &MapLayout,
+) -> Result<()>
+where
+    DB::ErrorType: 'static,
+{
     root.fill(&WHITE).map_err(plot_err)?;
-    let (left, right) = root.split_horizontally(880);
+    let (title, body) = root.split_vertically(TITLE_H);
+    title
+        .draw(&Text::new(
+            plot.title.clone(),
+            ((layout.size_px.0 / 2) as i32, (TITLE_H / 2) as i32),
+            ("sans-serif", 20).into_font().color(&BLACK).pos(Pos::new(HPos::Center, VPos::Center)),
+        ))
+        .map_err(plot_err)?;
+    let (left, right) = body.split_horizontally(layout.size_px.0 - BAR_W);
+    let (x0, x1) = layout.x_range;
+    let (y0, y1) = layout.y_range;
     let mut chart = ChartBuilder::on(&left)
-        .caption(&plot.title, ("sans-serif", 22))
-        .margin(12)
-        .x_label_area_size(40)
-        .y_label_area_size(55)
+        .margin(MARGIN)
+        .x_label_area_size(X_LABELS)
+        .y_label_area_size(Y_LABELS)
         .build_cartesian_2d(x0..x1, y0..y1)
         .map_err(plot_err)?;
+    let fmt = |v: &f64| tick_label(*v);
     chart
         .configure_mesh()
         .disable_mesh()
         .x_desc("x (m)")
         .y_desc("y (m)")
+        .x_label_formatter(&fmt)
+        .y_label_formatter(&fmt)
         .axis_desc_style(("sans-serif", 16))
-        .label_style(("sans-serif", 13))
+        .label_style(("sans-serif", 14))
         .draw()
         .map_err(plot_err)?;
 
-    let max = plot.grid.max();
     let (px, py) = chart.plotting_area().get_pixel_range();
-    let (pw, ph) = ((px.end - px.start).max(1) as f64, (py.end - py.start).max(1) as f64);
-    let cell_range = |lo: f64, hi: f64, origin: f64, n: usize| {
-        let a = ((lo - origin) / spec.cell_m).floor().max(0.0) as usize;
-        let b = (((hi - origin) / spec.cell_m).ceil() as usize).clamp(a + 1, n.max(a + 1));
-        (a.min(n.saturating_sub(1)), b.min(n))
-    };
-    if max > 0.0 {
-        for sy in py.clone() {
-            let ya = y1 - (f64::from(sy - py.start) + 1.0) / ph * (y1 - y0);
-            let yb = y1 - f64::from(sy - py.start) / ph * (y1 - y0);
-            let (j0, j1) = cell_range(ya, yb, y0, spec.ny);
-            for sx in px.clone() {
-                let xa = x0 + f64::from(sx - px.start) / pw * (x1 - x0);
-                let xb = x0 + (f64::from(sx - px.start) + 1.0) / pw * (x1 - x0);
-                let (i0, i1) = cell_range(xa, xb, x0, spec.nx);
-                let mut v = 0.0f64;
-                for j in j0..j1 {
-                    for i in i0..i1 {
-                        v = v.max(plot.grid.get(i, j));
-                    }
-                }
-                if v > 0.0 {
-                    root.draw_pixel((sx, sy), &heat_colour((v / max).sqrt())).map_err(plot_err)?;
-                }
-            }
-        }
+    let (pw, ph) = ((px.end - px.start).max(1) as u32, (py.end - py.start).max(1) as u32);
+    let raster = grid_raster(plot.grid, (pw, ph), layout.x_range, layout.y_range, style.colour_map);
+    if let Some(img) = BitMapElement::<_>::with_owned_buffer((px.start, py.start), (pw, ph), raster) {
+        root.draw(&img).map_err(plot_err)?;
     }
 
+    let (xr, yr) = (layout.x_range, layout.y_range);
     for (k, o) in plot.obstacles.iter().enumerate() {
+        let runs = clip_path(&outline(&o.shape), xr, yr);
+        chart.draw_series(runs.iter().map(|r| PathElement::new(r.clone(), BLACK.stroke_width(4)))).map_err(plot_err)?;
         let s = chart
-            .draw_series(std::iter::once(PathElement::new(outline(&o.shape), RED.stroke_width(2))))
+            .draw_series(runs.into_iter().map(|r| PathElement::new(r, OBSTACLE.stroke_width(2))))
             .map_err(plot_err)?;
         if k == 0 {
-            s.label("obstacles").legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], RED.stroke_width(2)));
+            s.label("obstacles").legend(|(x, y)| {
+                Rectangle::new([(x, y - 5), (x + 16, y + 5)], ShapeStyle::from(&BLACK).stroke_width(2))
+            });
         }
     }
     let stride = (plot.listener_positions.len() / 4000).max(1);
     if !plot.listener_positions.is_empty() {
         chart
             .draw_series(
-                plot.listener_positions.iter().step_by(stride).map(|p| Circle::new((p.x, p.y), 1, GREEN.filled())),
+                plot.listener_positions
+                    .iter()
+                    .step_by(stride)
+                    .filter(|p| inside((p.x, p.y), xr, yr))
+                    .map(|p| Circle::new((p.x, p.y), 1, LISTENER.filled())),
             )
             .map_err(plot_err)?
             .label("listener positions")
-            .legend(|(x, y)| Circle::new((x + 8, y), 3, GREEN.filled()));
+            .legend(|(x, y)| Circle::new((x + 8, y), 3, LISTENER.mix(1.0).filled().stroke_width(1)));
         if let (Some(r), Some(p)) = (plot.listener_radius_m, plot.listener_positions.first()) {
             let c = Shape::Circle(chirpmap_core::Circle { center: *p, radius_m: r.max(1e-9) });
             chart
-                .draw_series(std::iter::once(PathElement::new(outline(&c), GREEN.stroke_width(2))))
+                .draw_series(
+                    clip_path(&outline(&c), xr, yr).into_iter().map(|r| PathElement::new(r, LISTENER.stroke_width(2))),
+                )
                 .map_err(plot_err)?;
         }
     }
+    draw_surfaces(&mut chart, style.surfaces, xr, yr)?;
     if !plot.sources.is_empty() {
         chart
-            .draw_series(plot.sources.iter().map(|p| TriangleMarker::new((p.x, p.y), 9, BLUE.filled())))
+            .draw_series(plot.sources.iter().filter(|p| inside((p.x, p.y), xr, yr)).flat_map(|p| {
+                [
+                    TriangleMarker::new((p.x, p.y), 11, BLACK.filled()),
+                    TriangleMarker::new((p.x, p.y), 7, WHITE.filled()),
+                ]
+            }))
             .map_err(plot_err)?
             .label("source")
-            .legend(|(x, y)| TriangleMarker::new((x + 8, y), 6, BLUE.filled()));
+            .legend(|(x, y)| TriangleMarker::new((x + 8, y), 6, BLACK.filled()));
     }
     if !plot.highlights.is_empty() {
         chart
-            .draw_series(plot.highlights.iter().flat_map(|h| {
+            .draw_series(plot.highlights.iter().filter(|h| inside((h.pos.x, h.pos.y), xr, yr)).flat_map(|h| {
                 [
-                    Circle::new((h.pos.x, h.pos.y), 7, BLACK.stroke_width(3)),
-                    Circle::new((h.pos.x, h.pos.y), 7, YELLOW.stroke_width(2)),
+                    Circle::new((h.pos.x, h.pos.y), 8, WHITE.stroke_width(5)),
+                    Circle::new((h.pos.x, h.pos.y), 8, HIGHLIGHT.stroke_width(3)),
                 ]
             }))
             .map_err(plot_err)?
             .label("highlights")
-            .legend(|(x, y)| Circle::new((x + 8, y), 5, YELLOW.stroke_width(2)));
+            .legend(|(x, y)| Circle::new((x + 8, y), 5, HIGHLIGHT.stroke_width(3)));
     }
     chart
         .configure_series_labels()
-        .background_style(WHITE.mix(0.85))
+        .background_style(WHITE.mix(0.9))
         .border_style(BLACK)
         .label_font(("sans-serif", 14))
         .position(SeriesLabelPosition::UpperRight)
         .draw()
         .map_err(plot_err)?;
 
-    // Colour bar.
+    let max = plot.grid.max();
     let top = if max > 0.0 { max } else { 1.0 };
-    let mut bar = ChartBuilder::on(&right)
-        .margin_top(44)
-        .margin_bottom(52)
-        .margin_right(8)
-        .y_label_area_size(60)
-        .build_cartesian_2d(0.0..1.0, 0.0..top)
-        .map_err(plot_err)?;
-    bar.configure_mesh()
-        .disable_mesh()
-        .disable_x_axis()
-        .y_labels(8)
-        .y_label_style(("sans-serif", 12))
-        .y_desc("accumulated weight")
-        .axis_desc_style(("sans-serif", 14))
-        .draw()
-        .map_err(plot_err)?;
-    let steps = 200;
-    bar.draw_series((0..steps).map(|k| {
-        let (a, b) = (k as f64 / steps as f64 * top, (k + 1) as f64 / steps as f64 * top);
-        Rectangle::new([(0.0, a), (1.0, b)], heat_colour((a / top).sqrt()).filled())
-    }))
-    .map_err(plot_err)?;
+    let cmap = style.colour_map;
+    colour_bar(
+        &right,
+        (0.0, top),
+        style.value_label.unwrap_or("accumulated weight"),
+        |v| cmap.eval((v / top).sqrt()),
+        (MARGIN, MARGIN + X_LABELS),
+    )?;
     root.present().map_err(plot_err)?;
+    Ok(())
+}
+
+fn draw_surfaces<DB: DrawingBackend>(
+    chart: &mut ChartContext<
+        DB,
+        Cartesian2d<plotters::coord::types::RangedCoordf64, plotters::coord::types::RangedCoordf64>,
+    >,
+    surfaces: &[Surface],
+    xr: (f64, f64),
+    yr: (f64, f64),
+) -> Result<()>
+where
+    DB::ErrorType: 'static,
+{
+    let mut labelled = false;
+    for &(a, b, ambiguous) in surfaces {
+        let is_point = (a.0 - b.0).abs() < 1e-12 && (a.1 - b.1).abs() < 1e-12;
+        let (a, b) = if is_point {
+            if !inside(a, xr, yr) {
+                continue;
+            }
+            (a, b)
+        } else {
+            match clip_segment(a, b, xr, yr) {
+                Some(ab) => ab,
+                None => continue,
+            }
+        };
+        let mut elements: Vec<DynElement<DB, (f64, f64)>> = Vec::new();
+        if is_point {
+            elements.push(Cross::new(a, 7, BLACK.stroke_width(5)).into_dyn());
+            elements.push(Cross::new(a, 7, SURFACE.stroke_width(3)).into_dyn());
+        } else if ambiguous {
+            elements
+                .push(plotters::element::DashedPathElement::new(vec![a, b], 8, 6, BLACK.stroke_width(5)).into_dyn());
+            elements
+                .push(plotters::element::DashedPathElement::new(vec![a, b], 8, 6, SURFACE.stroke_width(3)).into_dyn());
+        } else {
+            elements.push(PathElement::new(vec![a, b], BLACK.stroke_width(5)).into_dyn());
+            elements.push(PathElement::new(vec![a, b], SURFACE.stroke_width(3)).into_dyn());
+        }
+        let s = chart.draw_series(elements).map_err(plot_err)?;
+        if !labelled {
+            labelled = true;
+            s.label("surfaces (dashed: ambiguous)")
+                .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], SURFACE.stroke_width(3)));
+        }
+    }
     Ok(())
 }
 
@@ -226,66 +606,233 @@ pub struct SpectrumPlot<'a> {
     pub reflected_hz: &'a [f64],
 }
 
-/// Log-scaled loudness so the faint reflected peaks show next to the direct one.
+/// Log-scaled loudness so the faint reflected peaks show next to the direct
+/// one. Bars are at least 3 px wide; peaks are marked by triangles above
+/// their bars (red: direct, blue: reflected), so markers never hide bars.
+/// The log axis spans whole decades, each labelled. SVG for `.svg` paths.
 pub fn render_spectrum(path: &Path, plot: &SpectrumPlot) -> Result<()> {
     ensure_font();
-    let root = BitMapBackend::new(path, (1000, 500)).into_drawing_area();
+    with_backend!(path, (1000, 520), |root| draw_spectrum(root, plot))
+}
+
+fn draw_spectrum<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, plot: &SpectrumPlot) -> Result<()>
+where
+    DB::ErrorType: 'static,
+{
     root.fill(&WHITE).map_err(plot_err)?;
-    let top = plot.bins.iter().map(|b| b.1).fold(0.0, f64::max).max(1e-9) * 2.0;
-    let floor = plot.bins.iter().map(|b| b.1).filter(|v| *v > 0.0).fold(top, f64::min) / 4.0;
+    let vmax = plot.bins.iter().map(|b| b.1).filter(|v| v.is_finite()).fold(0.0, f64::max).max(1e-12);
+    let vmin = plot.bins.iter().map(|b| b.1).filter(|v| v.is_finite() && *v > 0.0).fold(vmax, f64::min);
+    // Whole decades, with room above the tallest bar for its marker.
+    let top = 10f64.powf((vmax * 3.0).log10().ceil());
+    let floor = 10f64.powf(vmin.log10().floor()).min(top / 10.0);
+    // Widen by a hair so rounding in plotters' decade walk keeps both end decades.
+    let (floor, top) = (floor * (1.0 - 1e-9), top * (1.0 + 1e-9));
     let (f0, f1) = plot.f_range_hz;
+    let (f0, f1) = if f1 > f0 { (f0, f1) } else { (f0, f0 + 1.0) };
     let mut chart = ChartBuilder::on(&root)
         .caption(&plot.title, ("sans-serif", 20))
         .margin(12)
-        .x_label_area_size(40)
+        .margin_right(40)
+        .x_label_area_size(44)
         .y_label_area_size(70)
         .build_cartesian_2d(f0..f1, (floor..top).log_scale())
         .map_err(plot_err)?;
+    let decades = (top / floor).log10().round().max(1.0) as usize;
+    let fmt_x = |v: &f64| tick_label(*v);
+    let fmt_y = |v: &f64| decade_label(*v);
     chart
         .configure_mesh()
         .disable_mesh()
         .x_desc("frequency (Hz)")
-        .y_desc("summed loudness (log)")
+        .y_desc("summed loudness (log scale)")
+        .x_label_formatter(&fmt_x)
+        .y_label_formatter(&fmt_y)
+        .y_labels(decades + 1)
         .axis_desc_style(("sans-serif", 16))
-        .label_style(("sans-serif", 13))
+        .label_style(("sans-serif", 14))
         .draw()
         .map_err(plot_err)?;
+    let (px, _) = chart.plotting_area().get_pixel_range();
+    let hz_per_px = (f1 - f0) / f64::from((px.end - px.start).max(1));
+    let width = plot.bin_hz.max(3.0 * hz_per_px);
+    let grey = RGBColor(40, 40, 40);
+    chart
+        .draw_series(plot.bins.iter().filter(|b| b.1 > 0.0).map(|&(f, v)| {
+            let c = f + 0.5 * plot.bin_hz;
+            Rectangle::new([(c - 0.5 * width, floor), (c + 0.5 * width, v)], grey.filled())
+        }))
+        .map_err(plot_err)?
+        .label(format!("spectrum ({} Hz bins)", tick_label(plot.bin_hz)))
+        .legend(move |(x, y)| Rectangle::new([(x, y - 4), (x + 16, y + 4)], grey.filled()));
+    // Marker height: just above the tallest bar within ±2 bins of the peak.
+    let height_at = |f: f64| {
+        plot.bins
+            .iter()
+            .filter(|b| (b.0 + 0.5 * plot.bin_hz - f).abs() <= 2.0 * plot.bin_hz.max(hz_per_px))
+            .map(|b| b.1)
+            .fold(floor, f64::max)
+            * 1.6
+    };
     if let Some(f) = plot.direct_hz {
         chart
-            .draw_series(std::iter::once(PathElement::new(vec![(f, floor), (f, top)], RED.mix(0.6).stroke_width(3))))
+            .draw_series(std::iter::once(TriangleMarker::new((f, height_at(f)), 8, RED.filled())))
             .map_err(plot_err)?
             .label("direct peak")
-            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], RED.stroke_width(3)));
+            .legend(|(x, y)| TriangleMarker::new((x + 8, y), 6, RED.filled()));
     }
     if !plot.reflected_hz.is_empty() {
         chart
-            .draw_series(
-                plot.reflected_hz
-                    .iter()
-                    .map(|&f| PathElement::new(vec![(f, floor), (f, top)], BLUE.mix(0.5).stroke_width(2))),
-            )
+            .draw_series(plot.reflected_hz.iter().map(|&f| TriangleMarker::new((f, height_at(f)), 7, BLUE.filled())))
             .map_err(plot_err)?
             .label("reflected peaks (echoes)")
-            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], BLUE.stroke_width(2)));
+            .legend(|(x, y)| TriangleMarker::new((x + 8, y), 6, BLUE.filled()));
     }
-    let grey = RGBColor(30, 30, 30);
-    chart
-        .draw_series(
-            plot.bins.iter().map(|&(f, v)| {
-                Rectangle::new([(f, floor), (f + plot.bin_hz.max((f1 - f0) / 800.0), v)], grey.filled())
-            }),
-        )
-        .map_err(plot_err)?
-        .label("spectrum (10 Hz bins)")
-        .legend(move |(x, y)| Rectangle::new([(x, y - 4), (x + 16, y + 4)], grey.filled()));
     chart
         .configure_series_labels()
-        .background_style(WHITE.mix(0.85))
+        .background_style(WHITE.mix(0.9))
         .border_style(BLACK)
         .label_font(("sans-serif", 14))
-        .position(SeriesLabelPosition::UpperLeft)
+        .position(SeriesLabelPosition::UpperRight)
         .draw()
         .map_err(plot_err)?;
     root.present().map_err(plot_err)?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use chirpmap_core::GridSpec;
+
+    #[test]
+    fn tick_labels_read_as_written() {
+        assert_eq!(tick_label(50.0), "50");
+        assert_eq!(tick_label(-50.0), "-50");
+        assert_eq!(tick_label(0.25), "0.25");
+        assert_eq!(tick_label(0.1 + 0.2), "0.3");
+        assert_eq!(tick_label(-0.0), "0");
+        assert_eq!(tick_label(-2.7755575615628914e-17), "0");
+        assert_eq!(tick_label(-1e-7), "-1e-7");
+        assert_eq!(tick_label(2.5e9), "2.5e9");
+        assert_eq!(decade_label(1e-3), "10⁻³");
+        assert_eq!(decade_label(100.0), "10²");
+        assert_eq!(decade_label(1.0), "10⁰");
+        assert_eq!(decade_label(20.0), "");
+    }
+
+    #[test]
+    fn nice_ticks_are_round_and_inside() {
+        assert_eq!(nice_ticks(0.0, 10.0, 5), vec![0.0, 2.0, 4.0, 6.0, 8.0, 10.0]);
+        assert_eq!(nice_ticks(-60.0, 0.0, 6), vec![-60.0, -50.0, -40.0, -30.0, -20.0, -10.0, 0.0]);
+        let t = nice_ticks(0.0, 37.3, 6);
+        assert!(t.iter().all(|v| (0.0..=37.3).contains(v)) && t.len() >= 4, "{t:?}");
+        assert!(nice_ticks(1.0, 1.0, 5).is_empty());
+    }
+
+    #[test]
+    fn colour_maps_are_the_published_tables() {
+        // matplotlib's _viridis_data / _inferno_data end points (×255, rounded).
+        assert_eq!(ColourMap::Viridis.eval(0.0), RGBColor(68, 1, 84));
+        assert_eq!(ColourMap::Viridis.eval(1.0), RGBColor(253, 231, 37));
+        assert_eq!(ColourMap::Inferno.eval(0.0), RGBColor(0, 0, 4));
+        assert_eq!(ColourMap::Inferno.eval(2.0), ColourMap::Inferno.eval(1.0));
+        assert_eq!(ColourMap::Viridis.eval(f64::NAN), ColourMap::Viridis.eval(0.0));
+    }
+
+    #[test]
+    fn map_layout_is_one_to_one_for_any_shape() {
+        for (wx, wy) in [(100.0, 100.0), (100.0, 7.0), (3.0, 90.0), (1000.0, 1.0), (0.5, 0.5)] {
+            let l = map_layout((-wx / 2.0, wx / 2.0), (2.0, 2.0 + wy));
+            let mx = (l.x_range.1 - l.x_range.0) / f64::from(l.plot_px.0);
+            let my = (l.y_range.1 - l.y_range.0) / f64::from(l.plot_px.1);
+            assert!((mx - my).abs() <= 1e-9 * mx, "{wx}×{wy}: {mx} vs {my} m/px");
+            // The whole grid is shown.
+            assert!(l.x_range.0 <= -wx / 2.0 + 1e-9 && l.x_range.1 >= wx / 2.0 - 1e-9);
+            assert!(l.y_range.0 <= 2.0 + 1e-9 && l.y_range.1 >= 2.0 + wy - 1e-9);
+            assert!(l.plot_px.0.max(l.plot_px.1) <= 2400);
+        }
+    }
+
+    #[test]
+    fn paths_are_cut_at_the_box() {
+        let (x, y) = ((0.0, 10.0), (0.0, 10.0));
+        assert_eq!(clip_segment((-5.0, 5.0), (15.0, 5.0), x, y), Some(((0.0, 5.0), (10.0, 5.0))));
+        assert_eq!(clip_segment((-5.0, -5.0), (-1.0, 20.0), x, y), None);
+        assert_eq!(clip_segment((1.0, 1.0), (2.0, 2.0), x, y), Some(((1.0, 1.0), (2.0, 2.0))));
+        // In, out, in again: two runs; a path wholly outside: none.
+        let runs = clip_path(&[(1.0, 5.0), (20.0, 5.0), (20.0, 6.0), (1.0, 6.0)], x, y);
+        assert_eq!(runs, vec![vec![(1.0, 5.0), (10.0, 5.0)], vec![(10.0, 6.0), (1.0, 6.0)]]);
+        assert!(clip_path(&[(20.0, 20.0), (30.0, 30.0)], x, y).is_empty());
+    }
+
+    fn test_grid() -> Grid {
+        let spec = GridSpec { x_min_m: 0.0, y_min_m: 0.0, cell_m: 1.0, nx: 40, ny: 10 };
+        let mut g = Grid::zeros(spec);
+        g.data[3 * 40 + 5] = 4.0; // cell (5, 3)
+        g.data[9 * 40 + 39] = 1.0; // top-right cell
+        g
+    }
+
+    #[test]
+    fn raster_puts_rows_of_y_max_on_top_and_keeps_single_cells() {
+        let g = test_grid();
+        // 4 px per cell.
+        let r = grid_raster(&g, (160, 40), (0.0, 40.0), (0.0, 10.0), ColourMap::Viridis);
+        let px = |x: usize, y: usize| [r[(y * 160 + x) * 3], r[(y * 160 + x) * 3 + 1], r[(y * 160 + x) * 3 + 2]];
+        let top = ColourMap::Viridis.eval(1.0);
+        // Cell (5, 3): x in [5, 6) → px 20..24; y in [3, 4) → rows from the top 24..28.
+        assert_eq!(px(21, 25), [top.0, top.1, top.2]);
+        let half = ColourMap::Viridis.eval(0.5); // √(1/4)
+        assert_eq!(px(158, 1), [half.0, half.1, half.2]);
+        let zero = ColourMap::Viridis.eval(0.0);
+        assert_eq!(px(80, 20), [zero.0, zero.1, zero.2]);
+        // Downsampled 10×: the single hot cell still shows (max, not mean).
+        let small = grid_raster(&g, (4, 1), (0.0, 40.0), (0.0, 10.0), ColourMap::Viridis);
+        assert_eq!(&small[..3], &[top.0, top.1, top.2]);
+    }
+
+    #[test]
+    fn map_renders_png_and_svg_with_surfaces() {
+        let dir = tempfile::tempdir().unwrap();
+        let g = test_grid();
+        let hl = [Highlight { pos: Point::new(5.5, 3.5), value: 4.0 }];
+        let surfaces: [Surface; 3] =
+            [((1.0, 1.0), (10.0, 1.0), false), ((1.0, 8.0), (10.0, 8.0), true), ((20.0, 5.0), (20.0, 5.0), false)];
+        let plot = MapPlot {
+            title: "test".into(),
+            grid: &g,
+            highlights: &hl,
+            sources: &[Point::new(0.0, 0.0)],
+            listener_positions: &[Point::new(30.0, 5.0), Point::new(31.0, 5.0)],
+            listener_radius_m: Some(0.5),
+            obstacles: &[],
+        };
+        let style = MapStyle { surfaces: &surfaces, ..MapStyle::default() };
+        for name in ["m.png", "m.svg"] {
+            render_map_with(&dir.path().join(name), &plot, &style).unwrap();
+        }
+        let svg = std::fs::read_to_string(dir.path().join("m.svg")).unwrap();
+        assert!(svg.starts_with("<svg") && svg.contains("<image") && svg.contains("<text"), "{}", &svg[..200]);
+        // One embedded image for the heat map, not a rectangle per pixel.
+        assert!(svg.len() < 400_000, "{} bytes", svg.len());
+        let png = std::fs::read(dir.path().join("m.png")).unwrap();
+        assert_eq!(&png[1..4], b"PNG");
+    }
+
+    #[test]
+    fn spectrum_renders() {
+        let dir = tempfile::tempdir().unwrap();
+        let bins = [(1000.0, 5.0), (1010.0, 0.01), (3000.0, 0.2)];
+        let plot = SpectrumPlot {
+            title: "s".into(),
+            bins: &bins,
+            bin_hz: 10.0,
+            f_range_hz: (200.0, 10_000.0),
+            direct_hz: Some(1005.0),
+            reflected_hz: &[3005.0],
+        };
+        render_spectrum(&dir.path().join("s.png"), &plot).unwrap();
+        render_spectrum(&dir.path().join("s.svg"), &plot).unwrap();
+        assert!(std::fs::read_to_string(dir.path().join("s.svg")).unwrap().contains("10⁻"));
+    }
 }

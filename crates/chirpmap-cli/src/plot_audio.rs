@@ -1,17 +1,19 @@
-//! Audio figures (paper Fig. 8): a spectrogram of one chirp and the
-//! amplitude spectrum of one frame with the direct and reflected peaks.
+//! Audio figures (paper Fig. 8): a spectrogram of one chirp with a dB colour
+//! bar, and the amplitude spectrum of one frame with the direct and reflected
+//! peaks. SVG when the path ends in `.svg`, PNG otherwise.
 
-use crate::plot::{ensure_font, heat_colour};
-use anyhow::{Result, anyhow};
+use crate::plot::{ColourMap, colour_bar, ensure_font, plot_err, tick_label, with_backend};
+use anyhow::Result;
+use plotters::coord::Shift;
 use plotters::prelude::*;
 use std::path::Path;
 
-fn plot_err<E: std::fmt::Display>(e: E) -> anyhow::Error {
-    anyhow!("plotting failed: {e}")
-}
+/// Dynamic range shown by the spectrogram (dB below its maximum).
+const RANGE_DB: f64 = 60.0;
 
 /// Spectrogram: `frames[i][k]` magnitude at time `t0_s + i·hop_s`, bin k of
-/// width `bin_hz`; shown in dB over the top 60 dB, up to `f_max_hz`.
+/// width `bin_hz`; shown in dB relative to the largest magnitude over the top
+/// 60 dB (inferno), up to `f_max_hz`, with a colour bar in dB.
 pub fn render_spectrogram(
     path: &Path,
     title: &str,
@@ -22,39 +24,86 @@ pub fn render_spectrogram(
     f_max_hz: f64,
 ) -> Result<()> {
     ensure_font();
-    let root = BitMapBackend::new(path, (900, 600)).into_drawing_area();
+    let sg = Spectrogram { title, frames, t0_s, hop_s, bin_hz, f_max_hz };
+    with_backend!(path, (1000, 600), |root| draw_spectrogram(root, &sg))
+}
+
+struct Spectrogram<'a> {
+    title: &'a str,
+    frames: &'a [Vec<f64>],
+    t0_s: f64,
+    hop_s: f64,
+    bin_hz: f64,
+    f_max_hz: f64,
+}
+
+/// RGB raster (`w` × `h`, top row = `f_max`) of the spectrogram in dB.
+fn spectrogram_raster(sg: &Spectrogram, (w, h): (u32, u32)) -> Vec<u8> {
+    let mut buf = vec![255u8; (w as usize) * (h as usize) * 3];
+    let max = sg.frames.iter().flat_map(|f| f.iter()).filter(|v| v.is_finite()).fold(0.0f64, |m, v| m.max(*v));
+    if max <= 0.0 || sg.bin_hz <= 0.0 {
+        return buf;
+    }
+    for sx in 0..w {
+        let i = ((f64::from(sx) + 0.5) / f64::from(w) * sg.frames.len() as f64) as usize;
+        let Some(fr) = sg.frames.get(i) else { continue };
+        for sy in 0..h {
+            let f = (1.0 - (f64::from(sy) + 0.5) / f64::from(h)) * sg.f_max_hz;
+            let Some(v) = fr.get((f / sg.bin_hz) as usize) else { continue };
+            let db = 20.0 * (v / max).max(1e-12).log10();
+            let c = ColourMap::Inferno.eval((db + RANGE_DB) / RANGE_DB);
+            let k = ((sy as usize) * (w as usize) + sx as usize) * 3;
+            buf[k..k + 3].copy_from_slice(&[c.0, c.1, c.2]);
+        }
+    }
+    buf
+}
+
+fn draw_spectrogram<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, sg: &Spectrogram) -> Result<()>
+where
+    DB::ErrorType: 'static,
+{
     root.fill(&WHITE).map_err(plot_err)?;
-    let t1 = t0_s + hop_s * frames.len().max(1) as f64;
-    let mut chart = ChartBuilder::on(&root)
-        .caption(title, ("sans-serif", 20))
+    let (left, right) = root.split_horizontally(880);
+    let t1 = sg.t0_s + sg.hop_s * sg.frames.len().max(1) as f64;
+    let f_max = if sg.f_max_hz > 0.0 { sg.f_max_hz } else { 1.0 };
+    let mut chart = ChartBuilder::on(&left)
+        .caption(sg.title, ("sans-serif", 20))
         .margin(12)
-        .x_label_area_size(40)
-        .y_label_area_size(60)
-        .build_cartesian_2d(t0_s..t1, 0.0..f_max_hz)
+        .margin_right(20)
+        .x_label_area_size(44)
+        .y_label_area_size(70)
+        .build_cartesian_2d(sg.t0_s..t1, 0.0..f_max)
         .map_err(plot_err)?;
+    let fmt = |v: &f64| tick_label(*v);
     chart
         .configure_mesh()
         .disable_mesh()
         .x_desc("time in recording (s)")
         .y_desc("frequency (Hz)")
-        .label_style(("sans-serif", 13))
+        .x_label_formatter(&fmt)
+        .y_label_formatter(&fmt)
+        .axis_desc_style(("sans-serif", 16))
+        .label_style(("sans-serif", 14))
         .draw()
         .map_err(plot_err)?;
-    let max = frames.iter().flat_map(|f| f.iter()).fold(0.0f64, |m, v| m.max(*v)).max(1e-30);
     let (px, py) = chart.plotting_area().get_pixel_range();
-    let (pw, ph) = ((px.end - px.start).max(1) as f64, (py.end - py.start).max(1) as f64);
-    for sx in px.clone() {
-        let i = ((f64::from(sx - px.start) / pw) * frames.len() as f64) as usize;
-        let Some(fr) = frames.get(i) else { continue };
-        for sy in py.clone() {
-            let f = (1.0 - f64::from(sy - py.start) / ph) * f_max_hz;
-            let k = (f / bin_hz) as usize;
-            let Some(v) = fr.get(k) else { continue };
-            let db = 20.0 * (v / max).max(1e-12).log10();
-            let u = ((db + 60.0) / 60.0).clamp(0.0, 1.0);
-            root.draw_pixel((sx, sy), &heat_colour(u)).map_err(plot_err)?;
-        }
+    let (pw, ph) = ((px.end - px.start).max(1) as u32, (py.end - py.start).max(1) as u32);
+    let raster = spectrogram_raster(sg, (pw, ph));
+    if let Some(img) = BitMapElement::<_>::with_owned_buffer((px.start, py.start), (pw, ph), raster) {
+        root.draw(&img).map_err(plot_err)?;
     }
+    // The bar spans the plotting area's height: same top and bottom margins.
+    let (_, h) = root.dim_in_pixel();
+    let top = u32::try_from(py.start).unwrap_or(0);
+    let bottom = h.saturating_sub(u32::try_from(py.end).unwrap_or(h));
+    colour_bar(
+        &right,
+        (-RANGE_DB, 0.0),
+        "level (dB re max)",
+        |db| ColourMap::Inferno.eval((db + RANGE_DB) / RANGE_DB),
+        (top, bottom),
+    )?;
     root.present().map_err(plot_err)?;
     Ok(())
 }
@@ -70,31 +119,60 @@ pub fn render_spectrum(
     reflected_hz: Option<f64>,
 ) -> Result<()> {
     ensure_font();
-    let root = BitMapBackend::new(path, (900, 500)).into_drawing_area();
+    with_backend!(path, (1000, 520), |root| draw_spectrum(root, title, freqs_hz, amplitude, direct_hz, reflected_hz))
+}
+
+fn draw_spectrum<DB: DrawingBackend>(
+    root: DrawingArea<DB, Shift>,
+    title: &str,
+    freqs_hz: &[f64],
+    amplitude: &[f64],
+    direct_hz: Option<f64>,
+    reflected_hz: Option<f64>,
+) -> Result<()>
+where
+    DB::ErrorType: 'static,
+{
     root.fill(&WHITE).map_err(plot_err)?;
-    let (f0, f1) = (freqs_hz.first().copied().unwrap_or(0.0), freqs_hz.last().copied().unwrap_or(1.0).max(1e-9));
-    let top = amplitude.iter().fold(0.0f64, |m, v| m.max(*v)).max(1e-30) * 1.1;
+    let f0 = freqs_hz.first().copied().unwrap_or(0.0);
+    let f1 = freqs_hz.last().copied().unwrap_or(1.0);
+    let (f0, f1) = if f1 > f0 { (f0, f1) } else { (f0, f0 + 1.0) };
+    let top = amplitude.iter().filter(|v| v.is_finite()).fold(0.0f64, |m, v| m.max(*v)).max(1e-30) * 1.1;
     let mut chart = ChartBuilder::on(&root)
         .caption(title, ("sans-serif", 20))
         .margin(12)
-        .x_label_area_size(40)
-        .y_label_area_size(60)
+        .margin_right(40)
+        .x_label_area_size(44)
+        .y_label_area_size(80)
         .build_cartesian_2d(f0..f1, 0.0..top)
         .map_err(plot_err)?;
+    let fmt = |v: &f64| tick_label(*v);
     chart
         .configure_mesh()
+        .light_line_style(RGBColor(235, 235, 235))
+        .bold_line_style(RGBColor(215, 215, 215))
         .x_desc("frequency (Hz)")
         .y_desc("amplitude (smoothed)")
-        .label_style(("sans-serif", 13))
+        .x_label_formatter(&fmt)
+        .y_label_formatter(&fmt)
+        .axis_desc_style(("sans-serif", 16))
+        .label_style(("sans-serif", 14))
         .draw()
         .map_err(plot_err)?;
     chart
         .draw_series(LineSeries::new(freqs_hz.iter().copied().zip(amplitude.iter().copied()), BLACK.stroke_width(2)))
-        .map_err(plot_err)?;
+        .map_err(plot_err)?
+        .label("spectrum")
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], BLACK.stroke_width(2)));
     for (f, colour, label) in [(direct_hz, BLUE, "direct"), (reflected_hz, RED, "reflected")] {
         if let Some(f) = f {
             chart
-                .draw_series(std::iter::once(PathElement::new(vec![(f, 0.0), (f, top)], colour.stroke_width(2))))
+                .draw_series(std::iter::once(plotters::element::DashedPathElement::new(
+                    vec![(f, 0.0), (f, top)],
+                    6,
+                    4,
+                    colour.stroke_width(2),
+                )))
                 .map_err(plot_err)?
                 .label(format!("{label} {f:.0} Hz"))
                 .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], colour.stroke_width(2)));
@@ -102,11 +180,45 @@ pub fn render_spectrum(
     }
     chart
         .configure_series_labels()
-        .background_style(WHITE.mix(0.85))
+        .background_style(WHITE.mix(0.9))
         .border_style(BLACK)
         .label_font(("sans-serif", 14))
+        .position(SeriesLabelPosition::UpperRight)
         .draw()
         .map_err(plot_err)?;
     root.present().map_err(plot_err)?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn spectrogram_raster_is_in_db_with_high_frequencies_on_top() {
+        // Two frames, 4 bins of 100 Hz: frame 0 loud at bin 0, frame 1 at bin 3 (−20 dB).
+        let frames = vec![vec![1.0, 0.0, 0.0, 0.0], vec![0.0, 0.0, 0.0, 0.1]];
+        let sg = Spectrogram { title: "", frames: &frames, t0_s: 0.0, hop_s: 0.1, bin_hz: 100.0, f_max_hz: 400.0 };
+        let r = spectrogram_raster(&sg, (2, 4));
+        let px = |x: usize, y: usize| RGBColor(r[(y * 2 + x) * 3], r[(y * 2 + x) * 3 + 1], r[(y * 2 + x) * 3 + 2]);
+        assert_eq!(px(0, 3), ColourMap::Inferno.eval(1.0)); // bottom row = bin 0, 0 dB
+        assert_eq!(px(1, 0), ColourMap::Inferno.eval(40.0 / 60.0)); // top row = bin 3, −20 dB
+        assert_eq!(px(0, 0), ColourMap::Inferno.eval(0.0)); // silence floors at −60 dB
+    }
+
+    #[test]
+    fn audio_figures_render_as_png_and_svg() {
+        let dir = tempfile::tempdir().unwrap();
+        let frames: Vec<Vec<f64>> =
+            (0..50).map(|i| (0..200).map(|k| if k == i + 20 { 1.0 } else { 1e-3 }).collect()).collect();
+        let freqs: Vec<f64> = (0..100).map(|k| 100.0 * f64::from(k)).collect();
+        let amp: Vec<f64> = freqs.iter().map(|f| (-((f - 3000.0) / 300.0).powi(2)).exp()).collect();
+        for ext in ["png", "svg"] {
+            render_spectrogram(&dir.path().join(format!("g.{ext}")), "g", &frames, 1.0, 0.01, 50.0, 10_000.0).unwrap();
+            render_spectrum(&dir.path().join(format!("s.{ext}")), "s", &freqs, &amp, Some(3000.0), Some(4200.0))
+                .unwrap();
+        }
+        let svg = std::fs::read_to_string(dir.path().join("g.svg")).unwrap();
+        assert!(svg.contains("<image") && svg.contains("dB"));
+    }
 }
