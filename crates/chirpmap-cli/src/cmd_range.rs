@@ -104,19 +104,9 @@ pub fn run(args: &RangeArgs) -> Result<()> {
     }
     let summaries: Vec<Value> = report.summaries.iter().map(serde_json::to_value).collect::<Result<_, _>>()?;
     let primary = if args.compare { methods.iter().position(|&m| m == args.method).unwrap_or(0) } else { 0 };
-    let mut summary = summaries[primary].clone();
+    let mut summary = serde_json::to_value(report.summary(&prep, &chirp, &geom, primary))?;
     summary["wav"] = json!(args.wav.display().to_string());
-    summary["sample_rate_hz"] = json!(prep.sample_rate_hz);
-    summary["recording_s"] = json!(prep.duration_s);
     summary["clipped_samples"] = json!(clipped);
-    summary["speaker"] = json!(args.speaker);
-    summary["mic"] = json!(args.mic);
-    summary["chirp"] = json!({"f_start": chirp.f_start_hz, "f_end": chirp.f_end_hz, "duration": chirp.duration_s});
-    summary["max_delta_d_m"] = json!(prep.lim.max_delta_d_m);
-    summary["gap_resolution_floor_m"] = json!(report.gap_resolution_floor_m);
-    if args.compare {
-        summary["compare"] = json!(summaries);
-    }
 
     out.write("chirps.csv", &csv)?;
     if args.compare {

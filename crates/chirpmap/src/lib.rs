@@ -12,7 +12,7 @@
 //! | step | function |
 //! |---|---|
 //! | simulate a scene (particle model, §II.B), map and score it | [`simulate`] |
-//! | map echoes you measured (Algorithm 1) | [`map_echoes`] |
+//! | map echoes you measured (Algorithm 1, or the evidence mapper) | [`map_echoes`] |
 //! | score highlights against known obstacles (§V.A) | [`score`] |
 //! | synthesize what the listeners record | [`synth`] |
 //! | range a recording: Δd per chirp (§IV) | [`prepare`] then [`range`] |
@@ -50,12 +50,15 @@ pub use chirpmap_sim as sim;
 
 pub use chirpmap_audio::synth::Synthesized;
 pub use chirpmap_audio::{Method, SynthConfig};
-pub use chirpmap_core::{Echo, Grid, GridSpec, Highlight, MappingParams, Obstacle, Point, Scene};
+pub use chirpmap_core::{
+    Echo, EvidenceParams, Grid, GridSpec, Highlight, MapperKind, MappingParams, Obstacle, Point, Scene, Surface,
+    SurfaceKind,
+};
 pub use error::{Error, Result};
 pub use mapping::{MapOptions, MapResult, Scores, covering_bounds, foci, map_echoes, map_on_grid, score};
 pub use recording::{
-    ChirpSpec, FrameParams, MethodSummary, PoseTrack, Prepared, RangeGeometry, RangeReport, RecordingEchoes,
-    SPEED_OF_SOUND_RANGE_MPS, WallStats, echoes_from_recording, prepare, range, wall_distance,
+    ChirpSpec, ChirpSummary, FrameParams, MethodSummary, PoseTrack, Prepared, RangeGeometry, RangeReport, RangeSummary,
+    RecordingEchoes, SPEED_OF_SOUND_RANGE_MPS, WallStats, echoes_from_recording, prepare, range, wall_distance,
 };
 pub use simulate::{Simulation, default_listener_path, parse_scene, simulate, validate_scene};
 

@@ -3,8 +3,8 @@
 use crate::error::{Error, Result};
 use chirpmap_core::grid::DEFAULT_MEMORY_CAP_BYTES;
 use chirpmap_core::{
-    AccumulationMapper, Echo, Grid, GridSpec, Highlight, Mapper, MappingParams, Obstacle, Point, score_highlight,
-    score_obstacle,
+    AccumulationMapper, Echo, Grid, GridSpec, Highlight, Mapper, MapperKind, MappingParams, Obstacle, Point, Surface,
+    map_evidence, score_highlight, score_obstacle,
 };
 use serde::Serialize;
 use std::collections::HashSet;
@@ -30,10 +30,17 @@ impl Default for MapOptions {
 /// A finished map.
 #[derive(Debug, Clone)]
 pub struct MapResult {
-    /// The accumulated grid (rows = y, row 0 at `spec.y_min_m`).
+    /// The map (rows = y, row 0 at `spec.y_min_m`): accumulated ellipse
+    /// weights for the paper's mapper, log-odds of occupancy for the
+    /// evidence mapper.
     pub grid: Grid,
-    /// Likely obstacle locations, as Algorithm 1 returns them.
+    /// Likely obstacle locations: local maxima of the map (Algorithm 1's
+    /// highlights with the paper's mapper).
     pub highlights: Vec<Highlight>,
+    /// Reflecting surfaces (walls as segments, compact reflectors as
+    /// points), strongest first; empty with the paper's mapper, which only
+    /// finds highlights.
+    pub surfaces: Vec<Surface>,
     /// Cell updates made while mapping (the benchmarks' work measure).
     pub cells_updated: u64,
     /// The parameters the map was made with.
@@ -110,15 +117,31 @@ pub fn map_echoes(echoes: &[Echo], extra: &[(Point, Point)], opts: &MapOptions) 
     map_on_grid(echoes, spec, params)
 }
 
-/// Maps `echoes` on a given grid (the simulator maps on its world).
+/// Maps `echoes` on a given grid (the simulator maps on its world) with
+/// the mapper `params.mapper` selects.
 pub fn map_on_grid(echoes: &[Echo], spec: GridSpec, params: MappingParams) -> Result<MapResult> {
-    let mut mapper = AccumulationMapper::new(spec, params)?;
-    for e in echoes {
-        mapper.add_echo(e)?;
+    params.validate()?;
+    match params.mapper {
+        MapperKind::Paper => {
+            let mut mapper = AccumulationMapper::new(spec, params)?;
+            for e in echoes {
+                mapper.add_echo(e)?;
+            }
+            let highlights = mapper.highlights();
+            let cells_updated = mapper.cells_updated();
+            Ok(MapResult { grid: mapper.into_grid(), highlights, surfaces: Vec::new(), cells_updated, params })
+        }
+        MapperKind::Evidence => {
+            let m = map_evidence(echoes, spec, &params.evidence)?;
+            Ok(MapResult {
+                grid: m.grid,
+                highlights: m.highlights,
+                surfaces: m.surfaces,
+                cells_updated: m.cells_updated,
+                params,
+            })
+        }
     }
-    let highlights = mapper.highlights();
-    let cells_updated = mapper.cells_updated();
-    Ok(MapResult { grid: mapper.into_grid(), highlights, cells_updated, params })
 }
 
 /// Distinct sources (in first-seen order) and the listener positions where

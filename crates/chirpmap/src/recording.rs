@@ -219,6 +219,67 @@ pub fn range(prep: &Prepared, methods: &[Method], geom: &RangeGeometry) -> Resul
     })
 }
 
+/// What `range` reports about a recording (the keys of its summary.json).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct RangeSummary {
+    /// The primary method's summary (its keys come first).
+    #[serde(flatten)]
+    pub primary: MethodSummary,
+    /// Sample rate (Hz).
+    pub sample_rate_hz: f64,
+    /// Length of the recording (s).
+    pub recording_s: f64,
+    /// Speaker position `[x, y]` (m).
+    pub speaker: [f64; 2],
+    /// Microphone position `[x, y]` (m).
+    pub mic: [f64; 2],
+    /// The chirp: `f_start`, `f_end` (Hz), `duration` (s).
+    pub chirp: ChirpSummary,
+    /// Largest path difference searched (m).
+    pub max_delta_d_m: f64,
+    /// The gap method's resolution floor for this chirp (m).
+    pub gap_resolution_floor_m: f64,
+    /// Every method's summary, when several were run.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub compare: Option<Vec<MethodSummary>>,
+}
+
+/// The chirp as summaries record it.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct ChirpSummary {
+    /// Start frequency (Hz).
+    pub f_start: f64,
+    /// End frequency (Hz).
+    pub f_end: f64,
+    /// Duration (s).
+    pub duration: f64,
+}
+
+impl RangeReport {
+    /// The summary with `methods[primary]` first (`compare` lists all
+    /// methods when there are several).
+    pub fn summary(&self, prep: &Prepared, chirp: &ChirpSpec, geom: &RangeGeometry, primary: usize) -> RangeSummary {
+        RangeSummary {
+            primary: self.summaries.get(primary).or(self.summaries.first()).cloned().unwrap_or(MethodSummary {
+                method: "",
+                chirps: 0,
+                estimates: 0,
+                delta_d_median: None,
+                delta_d_ci95: None,
+                wall: None,
+            }),
+            sample_rate_hz: prep.sample_rate_hz,
+            recording_s: prep.duration_s,
+            speaker: [geom.speaker.x, geom.speaker.y],
+            mic: [geom.mic.x, geom.mic.y],
+            chirp: ChirpSummary { f_start: chirp.f_start_hz, f_end: chirp.f_end_hz, duration: chirp.duration_s },
+            max_delta_d_m: prep.lim.max_delta_d_m,
+            gap_resolution_floor_m: self.gap_resolution_floor_m,
+            compare: (self.summaries.len() > 1).then(|| self.summaries.clone()),
+        }
+    }
+}
+
 /// The speaker-to-wall distance of one Δd, with a wall normal.
 pub fn wall_distance(geom: &RangeGeometry, delta_d_m: f64) -> Option<f64> {
     geom.wall_normal.and_then(|n| wall_distance_m(geom.speaker, geom.mic, n, delta_d_m))
