@@ -165,9 +165,9 @@ impl AccumulationMapper {
             return Err(CoreError::InvalidParam {
                 field: "weight",
                 reason: format!(
-                    "the echoes' weights add up beyond the largest number ({:e}); a cell of the map would be \
+                    "the echoes' weights add up beyond the largest number ({}); a cell of the map would be \
                      infinite. Scale the weights down",
-                    f64::MAX
+                    crate::error::Num(f64::MAX)
                 ),
             });
         }
