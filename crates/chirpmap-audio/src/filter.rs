@@ -97,13 +97,22 @@ pub fn paper_highpass(sample_rate_hz: f64) -> Result<Sos, AudioError> {
     butter_highpass(4, 100.0, sample_rate_hz)
 }
 
-/// Solves the small dense system `m·x = r` by Gaussian elimination with
-/// partial pivoting; `None` if singular.
-fn solve(mut m: Vec<Vec<f64>>, mut r: Vec<f64>) -> Option<Vec<f64>> {
+/// Solves the small dense system `m·x = r` (`m` square, `r.len()` rows) by
+/// Gaussian elimination with partial pivoting (Golub & Van Loan, *Matrix
+/// Computations*, §3.4). `None` when `m` is not square or is singular to
+/// working precision: a pivot below 1e-12 × the largest |entry| of `m`, or a
+/// non-finite solution. The one solver of the crate: Savitzky–Golay normal
+/// equations here, the direct-sound fit in `ranging`.
+pub(crate) fn solve_linear(mut m: Vec<Vec<f64>>, mut r: Vec<f64>) -> Option<Vec<f64>> {
     let n = r.len();
+    if m.len() != n || m.iter().any(|row| row.len() != n) {
+        return None;
+    }
+    let scale = m.iter().flatten().fold(0.0f64, |a, v| a.max(v.abs()));
+    let tiny = 1e-12 * scale;
     for col in 0..n {
         let piv = (col..n).max_by(|&i, &j| m[i][col].abs().total_cmp(&m[j][col].abs()))?;
-        if m[piv][col].abs() < 1e-300 {
+        if !(m[piv][col].abs() > tiny) {
             return None;
         }
         m.swap(col, piv);
@@ -122,7 +131,7 @@ fn solve(mut m: Vec<Vec<f64>>, mut r: Vec<f64>) -> Option<Vec<f64>> {
         let s: f64 = (i + 1..n).map(|k| m[i][k] * x[k]).sum();
         x[i] = (r[i] - s) / m[i][i];
     }
-    Some(x)
+    x.iter().all(|v| v.is_finite()).then_some(x)
 }
 
 /// Savitzky–Golay smoother: the least-squares polynomial of degree
@@ -155,7 +164,7 @@ impl SavitzkyGolay {
         let mut proj = Vec::with_capacity(window);
         for &xj in &xs {
             let aj: Vec<f64> = (0..p).map(|k| xj.powi(k as i32)).collect();
-            let u = solve(ata.clone(), aj)
+            let u = solve_linear(ata.clone(), aj)
                 .ok_or(AudioError::InvalidParam { field: "savgol", reason: "singular fit".into() })?;
             proj.push(xs.iter().map(|&xi| (0..p).map(|k| u[k] * xi.powi(k as i32)).sum()).collect());
         }
@@ -186,6 +195,38 @@ impl SavitzkyGolay {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use proptest::prelude::*;
+
+    #[test]
+    fn solver_solves_and_refuses_singular_or_ragged_systems() {
+        // Needs a row swap (zero first pivot): x = (1, 2, 3).
+        let m = vec![vec![0.0, 2.0, 1.0], vec![1.0, 1.0, 1.0], vec![2.0, 0.0, 3.0]];
+        let x = solve_linear(m, vec![7.0, 6.0, 11.0]).unwrap();
+        for (a, b) in x.iter().zip([1.0, 2.0, 3.0]) {
+            assert!((a - b).abs() < 1e-12, "{x:?}");
+        }
+        assert!(solve_linear(vec![vec![1.0, 2.0], vec![2.0, 4.0]], vec![1.0, 2.0]).is_none());
+        assert!(solve_linear(vec![vec![1.0, 2.0]], vec![1.0, 2.0]).is_none());
+        assert!(solve_linear(vec![vec![f64::NAN]], vec![1.0]).is_none());
+        assert_eq!(solve_linear(vec![], vec![]), Some(vec![]));
+    }
+
+    proptest! {
+        /// Oracle: multiply back. Diagonally dominant matrices are well conditioned,
+        /// so the residual must be at rounding level.
+        #[test]
+        fn solver_residual_is_tiny(n in 1usize..7, seed in proptest::collection::vec(-1.0f64..1.0, 49 + 7)) {
+            let m: Vec<Vec<f64>> = (0..n)
+                .map(|i| (0..n).map(|j| seed[i * 7 + j] + if i == j { 2.0 * n as f64 } else { 0.0 }).collect())
+                .collect();
+            let r: Vec<f64> = seed[49..49 + n].to_vec();
+            let x = solve_linear(m.clone(), r.clone()).unwrap();
+            for i in 0..n {
+                let back: f64 = (0..n).map(|j| m[i][j] * x[j]).sum();
+                prop_assert!((back - r[i]).abs() < 1e-12, "row {}: {} vs {}", i, back, r[i]);
+            }
+        }
+    }
 
     #[test]
     fn highpass_passes_nyquist_and_blocks_dc() {

@@ -511,7 +511,7 @@ fn direct_residual(seg: &[f32], tpl: &ChirpTemplate, off: usize, frame: usize) -
             g[i][j] = dot(regs[i], regs[j]);
         }
     }
-    let c = solve3(g, r)?;
+    let c = crate::filter::solve_linear(g.iter().map(|row| row.to_vec()).collect(), r.to_vec())?;
     Some(
         (0..frame)
             .map(|n| {
@@ -520,32 +520,6 @@ fn direct_residual(seg: &[f32], tpl: &ChirpTemplate, off: usize, frame: usize) -
             })
             .collect(),
     )
-}
-
-/// Solves the 3×3 system `g·c = r` by Gaussian elimination with pivoting.
-fn solve3(mut g: [[f64; 3]; 3], mut r: [f64; 3]) -> Option<[f64; 3]> {
-    for col in 0..3 {
-        let p = (col..3).max_by(|&a, &b| g[a][col].abs().total_cmp(&g[b][col].abs()))?;
-        if g[p][col].abs() < 1e-12 * g[0][0].abs().max(1e-300) {
-            return None;
-        }
-        g.swap(col, p);
-        r.swap(col, p);
-        for row in col + 1..3 {
-            let f = g[row][col] / g[col][col];
-            let pivot = g[col];
-            for (gk, pk) in g[row].iter_mut().zip(pivot).skip(col) {
-                *gk -= f * pk;
-            }
-            r[row] -= f * r[col];
-        }
-    }
-    let mut c = [0.0; 3];
-    for i in (0..3).rev() {
-        let s: f64 = (i + 1..3).map(|k| g[i][k] * c[k]).sum();
-        c[i] = (r[i] - s) / g[i][i];
-    }
-    c.iter().all(|v| v.is_finite()).then_some(c)
 }
 
 /// Index of 0 Hz in [`Ranger::dechirp_spectrum`]'s output.
