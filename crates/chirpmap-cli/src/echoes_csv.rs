@@ -1,71 +1,174 @@
 //! The echoes CSV of DESIGN.md: one ellipse a row, header required, extra
-//! columns ignored; `weight` defaults to 1, `t` and `listener` are optional.
+//! columns ignored; `weight` defaults to 1, `t`, `listener` and `sigma_m`
+//! (the 1-σ uncertainty of Δd, m) are optional.
+//!
+//! Records are read as bytes, so a non-UTF-8 byte in an ignored column is
+//! fine; line numbers are counted by us over `\n`, `\r\n` and `\r` alike
+//! (the `csv` crate counts only `\n`, so CRLF and CR-only files were
+//! reported on the wrong line; issue 8, item 14).
 
 use anyhow::{Context, Result, anyhow, bail};
+use chirpmap_core::error::Num;
 use chirpmap_core::{Echo, Point};
-use std::io::{Read, Write};
+use std::io::Write;
 use std::path::Path;
 
 const REQUIRED: [&str; 5] = ["source_x", "source_y", "listener_x", "listener_y", "delta_d"];
 
-/// Reads and validates every row; errors name the file, line and column.
-pub fn read_echoes(path: &Path) -> Result<Vec<Echo>> {
-    let file = std::fs::File::open(path).with_context(|| format!("cannot open echoes file {}", path.display()))?;
-    parse_echoes(file, &path.display().to_string())
+/// Longest quoted input value in an error (characters).
+const QUOTE_CHARS: usize = 40;
+
+/// `s`, cut to [`QUOTE_CHARS`] characters with `…`, for error messages.
+pub fn short(s: &str) -> String {
+    if s.chars().count() <= QUOTE_CHARS { s.to_string() } else { s.chars().take(QUOTE_CHARS).chain(['…']).collect() }
 }
 
-pub fn parse_echoes(reader: impl Read, name: &str) -> Result<Vec<Echo>> {
-    let mut rdr = csv::ReaderBuilder::new().trim(csv::Trim::All).from_reader(reader);
-    let headers = rdr.headers().with_context(|| format!("{name}: cannot read the CSV header"))?.clone();
+/// Byte offsets at which lines start, counting `\r\n`, `\n` and a lone `\r`
+/// each as one line end, to turn a record's byte offset into its line.
+#[derive(Debug)]
+pub struct LineIndex<'a> {
+    bytes: &'a [u8],
+    starts: Vec<u64>,
+}
+
+impl<'a> LineIndex<'a> {
+    pub fn new(bytes: &'a [u8]) -> Self {
+        let mut starts = vec![0u64];
+        let mut i = 0;
+        while i < bytes.len() {
+            match bytes[i] {
+                b'\n' => starts.push(i as u64 + 1),
+                b'\r' if bytes.get(i + 1) == Some(&b'\n') => {
+                    starts.push(i as u64 + 2);
+                    i += 1;
+                }
+                b'\r' => starts.push(i as u64 + 1),
+                _ => {}
+            }
+            i += 1;
+        }
+        Self { bytes, starts }
+    }
+
+    /// 1-based line of the record starting at byte `offset`. The `csv`
+    /// crate may report a record as starting on the line end before it (the
+    /// `\n` of a `\r\n`), and no record starts with a line end, so those
+    /// bytes are skipped first.
+    pub fn line_of(&self, offset: u64) -> u64 {
+        let mut o = usize::try_from(offset).unwrap_or(usize::MAX);
+        while matches!(self.bytes.get(o), Some(b'\r' | b'\n')) {
+            o += 1;
+        }
+        self.starts.partition_point(|&s| s <= o as u64) as u64
+    }
+}
+
+/// Reads and validates every row; errors name the file, line and column.
+pub fn read_echoes(path: &Path) -> Result<Vec<Echo>> {
+    let bytes = std::fs::read(path).with_context(|| format!("cannot open echoes file {}", path.display()))?;
+    parse_echoes(&bytes[..], &path.display().to_string())
+}
+
+/// Parses an echoes CSV held in memory; `name` is used in messages.
+pub fn parse_echoes(bytes: &[u8], name: &str) -> Result<Vec<Echo>> {
+    let lines = LineIndex::new(bytes);
+    let mut rdr = csv::ReaderBuilder::new().trim(csv::Trim::All).from_reader(bytes);
+    let headers: Vec<String> = rdr
+        .byte_headers()
+        .with_context(|| format!("{name}: cannot read the CSV header"))?
+        .iter()
+        .map(|h| String::from_utf8_lossy(h).into_owned())
+        .collect();
+    for (k, h) in headers.iter().enumerate() {
+        if !h.is_empty() && headers[..k].contains(h) {
+            bail!("{name}:1: column `{}` appears twice in the header", short(h));
+        }
+    }
     let col = |h: &str| headers.iter().position(|c| c == h);
     let mut idx = [0usize; 5];
     for (k, h) in REQUIRED.iter().enumerate() {
         idx[k] = col(h)
             .ok_or_else(|| anyhow!("{name}:1: missing column `{h}` (header must include {})", REQUIRED.join(",")))?;
     }
-    let (i_w, i_t, i_l) = (col("weight"), col("t"), col("listener"));
+    let (i_w, i_t, i_l, i_s) = (col("weight"), col("t"), col("listener"), col("sigma_m"));
     let mut echoes = Vec::new();
-    for rec in rdr.records() {
-        let rec = rec.with_context(|| format!("{name}: malformed CSV"))?;
-        let line = rec.position().map_or(0, |p| p.line());
+    for rec in rdr.byte_records() {
+        let rec = rec.map_err(|e| {
+            let line = e.position().map_or(0, |p| lines.line_of(p.byte()));
+            let what = match e.kind() {
+                csv::ErrorKind::UnequalLengths { expected_len, len, .. } => {
+                    format!("{len} fields where the header has {expected_len}")
+                }
+                _ => short(&e.to_string()),
+            };
+            anyhow!("{name}:{line}: malformed CSV: {what}")
+        })?;
+        let line = rec.position().map_or(0, |p| lines.line_of(p.byte()));
+        let text = |i: usize, h: &str| -> Result<Option<&str>> {
+            match rec.get(i) {
+                None => Ok(None),
+                Some(raw) => {
+                    std::str::from_utf8(raw).map(Some).map_err(|_| anyhow!("{name}:{line}: `{h}` is not valid UTF-8"))
+                }
+            }
+        };
         let field = |i: usize, h: &str| -> Result<f64> {
-            let raw = rec.get(i).ok_or_else(|| anyhow!("{name}:{line}: missing value for `{h}`"))?;
-            let v: f64 = raw.parse().map_err(|_| anyhow!("{name}:{line}: `{h}` = {raw:?} is not a number"))?;
+            let raw = text(i, h)?.ok_or_else(|| anyhow!("{name}:{line}: missing value for `{h}`"))?;
+            let v: f64 = raw.parse().map_err(|_| anyhow!("{name}:{line}: `{h}` = {:?} is not a number", short(raw)))?;
             if !v.is_finite() {
-                bail!("{name}:{line}: `{h}` = {raw:?} is not finite");
+                bail!("{name}:{line}: `{h}` = {:?} is not finite", short(raw));
             }
             Ok(v)
         };
-        let optional = |i: Option<usize>, h: &str, default: f64| -> Result<f64> {
-            match i.and_then(|i| rec.get(i)) {
-                Some(raw) if !raw.is_empty() => field(i.unwrap_or_default(), h),
-                _ => Ok(default),
+        let optional = |i: Option<usize>, h: &str| -> Result<Option<f64>> {
+            match i {
+                Some(i) if text(i, h)?.is_some_and(|raw| !raw.is_empty()) => field(i, h).map(Some),
+                _ => Ok(None),
             }
         };
         let v: Vec<f64> = REQUIRED.iter().zip(idx).map(|(h, i)| field(i, h)).collect::<Result<_>>()?;
-        let weight = optional(i_w, "weight", 1.0)?;
-        let t = optional(i_t, "t", 0.0)?;
-        let listener = optional(i_l, "listener", 0.0)?;
+        let weight = optional(i_w, "weight")?.unwrap_or(1.0);
+        let t = optional(i_t, "t")?.unwrap_or(0.0);
+        let listener = optional(i_l, "listener")?.unwrap_or(0.0);
         if listener < 0.0 || listener.fract() != 0.0 || listener > f64::from(u32::MAX) {
-            bail!("{name}:{line}: `listener` = {listener} must be a non-negative integer id");
+            bail!("{name}:{line}: `listener` = {} must be a non-negative integer id", Num(listener));
         }
-        let echo = Echo::new(Point::new(v[0], v[1]), Point::new(v[2], v[3]), v[4], weight, t, listener as u32)
-            .map_err(|e| anyhow!("{name}:{line}: {e}"))?;
+        let (source, mic) = (Point::new(v[0], v[1]), Point::new(v[2], v[3]));
+        for (what, p) in [("source", source), ("listener", mic)] {
+            if !p.is_sane() {
+                bail!("{name}:{line}: {what} {p} is beyond ±{} m", Num(chirpmap_core::geometry::MAX_COORD_M));
+            }
+        }
+        let mut echo =
+            Echo::new(source, mic, v[4], weight, t, listener as u32).map_err(|e| anyhow!("{name}:{line}: {e}"))?;
+        if let Some(sigma) = optional(i_s, "sigma_m")? {
+            if sigma <= 0.0 {
+                bail!("{name}:{line}: `sigma_m` = {} must be > 0 (the 1-σ uncertainty of delta_d, m)", Num(sigma));
+            }
+            echo = echo.with_sigma_m(sigma).map_err(|e| anyhow!("{name}:{line}: {e}"))?;
+        }
         echoes.push(echo);
     }
     Ok(echoes)
 }
 
-/// Writes echoes in the same format, full precision.
-#[allow(dead_code)] // The simulators' commands write echoes; `map` only reads them.
+/// Writes echoes in the same format, full precision; the `sigma_m` column
+/// is written when any echo has one (empty for those without).
 pub fn write_echoes(mut w: impl Write, echoes: &[Echo]) -> std::io::Result<()> {
-    writeln!(w, "source_x,source_y,listener_x,listener_y,delta_d,weight,t,listener")?;
+    let with_sigma = echoes.iter().any(|e| e.sigma_m.is_some());
+    let sigma_head = if with_sigma { ",sigma_m" } else { "" };
+    writeln!(w, "source_x,source_y,listener_x,listener_y,delta_d,weight,t,listener{sigma_head}")?;
     for e in echoes {
-        writeln!(
+        write!(
             w,
             "{},{},{},{},{},{},{},{}",
             e.source.x, e.source.y, e.listener.x, e.listener.y, e.delta_d_m, e.weight, e.t_s, e.listener_id
         )?;
+        match (with_sigma, e.sigma_m) {
+            (true, Some(s)) => writeln!(w, ",{s}")?,
+            (true, None) => writeln!(w, ",")?,
+            (false, _) => writeln!(w)?,
+        }
     }
     Ok(())
 }
@@ -85,20 +188,51 @@ mod tests {
         assert_eq!((e[0].listener.x, e[0].listener.y, e[0].delta_d_m, e[0].weight), (-2.5, 10.0, 12.3, 1.0));
         let mut buf = Vec::new();
         write_echoes(&mut buf, &e).unwrap();
+        assert!(!std::str::from_utf8(&buf).unwrap().contains("sigma_m"));
         assert_eq!(parse(std::str::from_utf8(&buf).unwrap()).unwrap(), e);
     }
 
-    proptest::proptest! {
-        #[test]
-        fn garbage_never_panics(bytes in proptest::collection::vec(proptest::num::u8::ANY, 0..400)) {
-            let _ = parse_echoes(bytes.as_slice(), "g.csv");
+    #[test]
+    fn sigma_m_is_read_validated_and_written() {
+        let head = "source_x,source_y,listener_x,listener_y,delta_d,sigma_m\n";
+        let e = parse(&format!("{head}0,0,1,1,2,0.05\n0,0,1,1,3,\n")).unwrap();
+        assert_eq!((e[0].sigma_m, e[1].sigma_m), (Some(0.05), None));
+        let mut buf = Vec::new();
+        write_echoes(&mut buf, &e).unwrap();
+        let text = String::from_utf8(buf).unwrap();
+        assert!(text.lines().next().unwrap().ends_with(",sigma_m"), "{text}");
+        assert_eq!(parse(&text).unwrap(), e);
+        for (bad, want) in [("0", "must be > 0"), ("-1", "must be > 0"), ("nan", "not finite"), ("x", "not a number")] {
+            let err = format!("{:#}", parse(&format!("{head}0,0,1,1,2,{bad}\n")).unwrap_err());
+            assert!(err.contains("e.csv:2") && err.contains(want), "{bad}: {err}");
         }
+    }
 
-        #[test]
-        fn garbage_rows_after_a_valid_header_never_panic(rows in "[0-9a-zA-Z,.\\-\n\"]{0,300}") {
-            let text = format!("source_x,source_y,listener_x,listener_y,delta_d,weight,t,listener\n{rows}");
-            let _ = parse_echoes(text.as_bytes(), "g.csv");
+    /// Issue 8, item 14.
+    #[test]
+    fn line_ends_duplicates_and_bytes() {
+        let head = "source_x,source_y,listener_x,listener_y,delta_d";
+        for eol in ["\n", "\r\n", "\r"] {
+            let text = format!("{head}{eol}0,0,1,1,2{eol}0,0,1,1,2{eol}0,0,1,1,abc{eol}");
+            let err = format!("{:#}", parse(&text).unwrap_err());
+            assert!(err.starts_with("e.csv:4: `delta_d`"), "{eol:?}: {err}");
+            let text = format!("{head}{eol}0,0,1,1,2{eol}0,0,1{eol}");
+            let err = format!("{:#}", parse(&text).unwrap_err());
+            assert!(err.starts_with("e.csv:3: malformed CSV"), "{eol:?}: {err}");
         }
+        let err = format!("{:#}", parse(&format!("{head},delta_d\n0,0,1,1,2,3\n")).unwrap_err());
+        assert!(err.contains("e.csv:1: column `delta_d` appears twice"), "{err}");
+        let mut bytes = format!("{head},note\n0,0,1,1,2,").into_bytes();
+        bytes.extend([0xff, 0xfe, b'\n']);
+        assert_eq!(parse_echoes(&bytes, "e.csv").unwrap().len(), 1);
+        // A UTF-8 byte-order mark and quoted names.
+        let text = format!("\u{feff}\"source_x\",source_y,listener_x,listener_y,delta_d\n0,0,1,1,2\n");
+        assert_eq!(parse(&text).unwrap().len(), 1);
+        // A huge bad value is quoted short.
+        let err = format!("{:#}", parse(&format!("{head}\n0,0,1,1,{}\n", "9x".repeat(100_000))).unwrap_err());
+        assert!(err.len() < 200, "{} chars", err.len());
+        let err = format!("{:#}", parse(&format!("{head}\n1e300,0,1,1,2\n")).unwrap_err());
+        assert!(err.contains("source (1e300, 0) is beyond"), "{err}");
     }
 
     #[test]
@@ -111,7 +245,7 @@ mod tests {
             (&format!("{head}0,0,1,1,-2,1\n"), "e.csv:2: delta_d must be >= 0"),
             (&format!("{head}1,1,1,1,2,1\n"), "e.csv:2: source and listener coincide"),
             (&format!("{head}0,0,1,1,2,-1\n"), "e.csv:2: invalid mapping parameter weight"),
-            (&format!("{head}0,0,1,1,2\n"), "e.csv: malformed CSV"),
+            (&format!("{head}0,0,1,1,2\n"), "e.csv:2: malformed CSV"),
         ];
         for (input, want) in cases {
             let err = format!("{:#}", parse(input).unwrap_err());
