@@ -226,8 +226,8 @@ mod tests {
         bytes.extend([0xff, 0xfe, b'\n']);
         assert_eq!(parse_echoes(&bytes, "e.csv").unwrap().len(), 1);
         // A UTF-8 byte-order mark and quoted names.
-        let text = format!("\u{feff}\"source_x\",source_y,listener_x,listener_y,delta_d\n0,0,1,1,2\n");
-        assert_eq!(parse(&text).unwrap().len(), 1);
+        let text = "\u{feff}\"source_x\",source_y,listener_x,listener_y,delta_d\n0,0,1,1,2\n";
+        assert_eq!(parse(text).unwrap().len(), 1);
         // A huge bad value is quoted short.
         let err = format!("{:#}", parse(&format!("{head}\n0,0,1,1,{}\n", "9x".repeat(100_000))).unwrap_err());
         assert!(err.len() < 200, "{} chars", err.len());

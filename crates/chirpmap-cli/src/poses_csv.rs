@@ -184,7 +184,7 @@ mod tests {
     }
 
     fn err(s: &str) -> String {
-        format!("{:#}", parse(s).err().map_or_else(|| anyhow!("(parsed)"), |e| e))
+        format!("{:#}", parse(s).err().unwrap_or_else(|| anyhow!("(parsed)")))
     }
 
     #[test]
