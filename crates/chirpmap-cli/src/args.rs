@@ -80,3 +80,12 @@ impl ChirpArgs {
         }
     }
 }
+
+/// Parses `paper` or `evidence`.
+pub fn parse_mapper(s: &str) -> Result<chirpmap::MapperKind, String> {
+    match s {
+        "paper" => Ok(chirpmap::MapperKind::Paper),
+        "evidence" => Ok(chirpmap::MapperKind::Evidence),
+        _ => Err(format!("{:?} is not a mapper (paper or evidence)", excerpt(s))),
+    }
+}

@@ -1,12 +1,13 @@
 //! `chirpmap map`: echoes CSV (or a moving listener's recording) → the
 //! facade's map → highlights, plot, summary.
 
-use crate::args::{ChirpArgs, parse_bounds, parse_point};
+use crate::args::{ChirpArgs, parse_bounds, parse_mapper, parse_point};
 use crate::echoes_csv::read_echoes;
 use crate::inputs::{load_scene, prepare_wav};
+use crate::mapout::{PlotFormat, map_outputs, map_summary, provenance, write_map};
 use crate::output::Staged;
-use crate::plot::{MapPlot, render_map};
-use crate::tables::{fmt_score, highlights_csv};
+use crate::plot::MapPlot;
+use crate::tables::fmt_score;
 use anyhow::{Context, Result, anyhow, bail};
 use chirpmap::{ChirpSpec, Echo, FrameParams, MapOptions, MappingParams, Obstacle, Point};
 use clap::Args;
@@ -59,6 +60,13 @@ pub struct MapArgs {
     /// Grid bounds XMIN,YMIN,XMAX,YMAX (m). Default: the region the ellipses cover.
     #[arg(long, value_parser = parse_bounds, allow_hyphen_values = true)]
     pub bounds: Option<[f64; 4]>,
+    /// Mapper: paper (Algorithm 1) or evidence (surfaces, free space, ghosts removed; docs/evidence-mapper.md)
+    /// [default: paper, or the scene's [mapping] mapper with --scene].
+    #[arg(long, value_parser = parse_mapper)]
+    pub mapper: Option<chirpmap::MapperKind>,
+    /// Figure format (map.png or map.svg).
+    #[arg(long, value_enum, default_value_t = PlotFormat::Png)]
+    pub plot_format: PlotFormat,
     /// Scene TOML: its obstacles (listed or random, resolved exactly as `simulate` does) are drawn and
     /// scored (score_obstacle / score_highlight); its [mapping] gives the defaults above, and its [chirp]
     /// the chirp of --wav.
@@ -68,13 +76,6 @@ pub struct MapArgs {
 
 pub fn run(args: &MapArgs) -> Result<()> {
     let started = Instant::now();
-    let mut outputs = vec!["highlights.csv", "map.png", "summary.json"];
-    if args.wav.is_some() {
-        outputs.push("echoes.csv");
-    }
-    let inputs: Vec<&Path> =
-        [&args.echoes, &args.wav, &args.poses, &args.scene].into_iter().flatten().map(PathBuf::as_path).collect();
-    let mut out = Staged::dir(&args.out, &outputs, &inputs)?;
     let (obstacles, base, chirp_base): (Vec<Obstacle>, MappingParams, ChirpSpec) = match &args.scene {
         Some(p) => {
             let (scene, _) = load_scene(p)?;
@@ -89,9 +90,18 @@ pub fn run(args: &MapArgs) -> Result<()> {
         keep_top: args.keep_top.unwrap_or(base.keep_top),
         min_of_max: args.min_of_max.unwrap_or(base.min_of_max),
         peak_radius: args.peak_radius.unwrap_or(base.peak_radius),
+        mapper: args.mapper.unwrap_or(base.mapper),
         ..base
     };
     params.validate()?;
+    let mut outputs = map_outputs(params.mapper, args.plot_format);
+    outputs.push("summary.json");
+    if args.wav.is_some() {
+        outputs.push("echoes.csv");
+    }
+    let inputs: Vec<&Path> =
+        [&args.echoes, &args.wav, &args.poses, &args.scene].into_iter().flatten().map(PathBuf::as_path).collect();
+    let mut out = Staged::dir(&args.out, &outputs, &inputs)?;
     let (echoes, label) = match (&args.echoes, &args.wav) {
         (Some(p), _) => (read_echoes(p)?, p.clone()),
         (None, Some(w)) => (echoes_from_wav(args, w, args.chirp.spec(chirp_base))?, w.clone()),
@@ -103,64 +113,55 @@ pub fn run(args: &MapArgs) -> Result<()> {
     let extra: Vec<(Point, Point)> = obstacles.iter().map(|o| o.shape.bbox()).collect();
     let opts = MapOptions { params, bounds: args.bounds, ..MapOptions::default() };
     let map = chirpmap::map_echoes(&echoes, &extra, &opts).with_context(|| format!("{}", label.display()))?;
-    let points = map.highlight_points();
     let (sources, listeners) = chirpmap::foci(&echoes);
-    let spec = map.spec();
-
-    out.write("highlights.csv", highlights_csv(&map.highlights))?;
     if args.wav.is_some() {
         let mut buf = Vec::new();
         crate::echoes_csv::write_echoes(&mut buf, &echoes)?;
         out.write("echoes.csv", buf)?;
     }
-    let scores = args.scene.as_ref().map(|_| chirpmap::score(&obstacles, &points));
+    let eval = args.scene.as_ref().map(|_| chirpmap::evaluate(&obstacles, &map));
     let mut title = format!("{} echoes, {} highlights", echoes.len(), map.highlights.len());
-    if let Some(s) = scores {
+    if !map.surfaces.is_empty() {
+        title += &format!(", {} surfaces", map.surfaces.len());
+    }
+    if let Some(e) = &eval {
         title += &format!(
             ", score_obstacle {}, score_highlight {}",
-            fmt_score(s.score_obstacle, 3),
-            fmt_score(s.score_highlight, 3)
+            fmt_score(e.scores.score_obstacle, 3),
+            fmt_score(e.scores.score_highlight, 3)
         );
     }
-    let png = out.path("map.png")?;
-    render_map(
-        &png,
-        &MapPlot {
-            title,
-            grid: &map.grid,
-            highlights: &map.highlights,
-            sources: &sources,
-            listener_positions: &listeners,
-            listener_radius_m: None,
-            obstacles: &obstacles,
-        },
-    )?;
-    let mut summary = json!({
-        "n_echoes": echoes.len(),
-        "n_highlights": map.highlights.len(),
-        "cells_updated": map.cells_updated,
-        "grid": { "bounds": [spec.x_min_m, spec.y_min_m, spec.x_max_m(), spec.y_max_m()], "nx": spec.nx, "ny": spec.ny, "cell": spec.cell_m },
-        "mapping": params,
-    });
-    if let Some(s) = scores {
-        summary["score_obstacle"] = json!(s.score_obstacle);
-        summary["score_highlight"] = json!(s.score_highlight);
-    }
+    let plot = MapPlot {
+        title,
+        grid: &map.grid,
+        highlights: &map.highlights,
+        sources: &sources,
+        listener_positions: &listeners,
+        listener_radius_m: None,
+        obstacles: &obstacles,
+    };
+    write_map(&mut out, &map, &plot, args.plot_format)?;
+    let mut summary = map_summary(&map, eval.as_ref());
+    summary["n_echoes"] = json!(echoes.len());
+    summary["mapping"] = json!(params);
+    summary["run"] = provenance();
     summary["elapsed_s"] = json!(started.elapsed().as_secs_f64());
     out.write("summary.json", serde_json::to_string_pretty(&summary)? + "\n")?;
     let dir = out.commit()?;
     say!(
-        "{} echoes -> {} highlights in {:.3} s; wrote {}",
+        "{} echoes -> {} highlights, {} surfaces in {:.3} s; wrote {}",
         echoes.len(),
         map.highlights.len(),
+        map.surfaces.len(),
         started.elapsed().as_secs_f64(),
         dir.display()
     );
-    if let Some(s) = scores {
+    if let Some(e) = &eval {
         say!(
-            "score_obstacle = {}, score_highlight = {}",
-            fmt_score(s.score_obstacle, 4),
-            fmt_score(s.score_highlight, 4)
+            "score_obstacle = {}, score_highlight = {}, surface F1 = {:.4}",
+            fmt_score(e.scores.score_obstacle, 4),
+            fmt_score(e.scores.score_highlight, 4),
+            e.surfaces.f1
         );
     }
     Ok(())

@@ -5,6 +5,7 @@
 
 use crate::args::{ChirpArgs, parse_point};
 use crate::inputs::{load_scene, prepare_wav};
+use crate::mapout::{PlotFormat, provenance};
 use crate::output::Staged;
 use crate::plot_audio::{render_spectrogram, render_spectrum};
 use anyhow::{Context, Result};
@@ -47,6 +48,9 @@ pub struct RangeArgs {
     /// compare.csv one row per method.
     #[arg(long)]
     pub compare: bool,
+    /// Figure format (spectrogram and spectrum as .png or .svg).
+    #[arg(long, value_enum, default_value_t = PlotFormat::Png)]
+    pub plot_format: PlotFormat,
     /// Output directory (chirps.csv, summary.json, spectrogram.png, spectrum.png).
     #[arg(long)]
     pub out: PathBuf,
@@ -58,7 +62,8 @@ fn fmt_opt(v: Option<f64>) -> String {
 
 pub fn run(args: &RangeArgs) -> Result<()> {
     let started = Instant::now();
-    let mut outputs = vec!["chirps.csv", "summary.json", "spectrogram.png", "spectrum.png"];
+    let fmt = args.plot_format;
+    let mut outputs = vec!["chirps.csv", "summary.json", fmt.spectrogram(), fmt.spectrum()];
     if args.compare {
         outputs.push("compare.csv");
     }
@@ -107,6 +112,7 @@ pub fn run(args: &RangeArgs) -> Result<()> {
     let mut summary = serde_json::to_value(report.summary(&prep, &chirp, &geom, primary))?;
     summary["wav"] = json!(args.wav.display().to_string());
     summary["clipped_samples"] = json!(clipped);
+    summary["run"] = provenance();
 
     out.write("chirps.csv", &csv)?;
     if args.compare {
@@ -135,7 +141,7 @@ pub fn run(args: &RangeArgs) -> Result<()> {
     // Figures of one chirp (the middle one), as the paper's Fig. 8.
     let mid = results.len() / 2;
     let (det, est) = (&results[mid].0, results[mid].1[primary]);
-    plot_chirp(&mut out, &prep, det.onset_sample, est, mid, results.len())?;
+    plot_chirp(&mut out, &prep, det.onset_sample, est, mid, results.len(), fmt)?;
     summary["elapsed_s"] = json!(started.elapsed().as_secs_f64());
     out.write("summary.json", serde_json::to_string_pretty(&summary)? + "\n")?;
     // A previous `--compare` run's compare.csv is dropped by the output manifest.
@@ -165,6 +171,7 @@ fn plot_chirp(
     est: Option<Estimate>,
     index: usize,
     count: usize,
+    fmt: PlotFormat,
 ) -> Result<()> {
     let fs = prep.sample_rate_hz;
     let tpl = &prep.tpl;
@@ -178,7 +185,7 @@ fn plot_chirp(
     let frames = stft_magnitude(&mut cache, &prep.x[s0..s1], frame, hop, nfft);
     let f_max = tpl.chirp.f_start_hz().max(tpl.chirp.f_end_hz()) * 1.15;
     render_spectrogram(
-        &out.path("spectrogram.png")?,
+        &out.path(fmt.spectrogram())?,
         &format!("chirp {} of {count}: spectrogram", index + 1),
         &frames,
         s0 as f64 / fs,
@@ -202,7 +209,7 @@ fn plot_chirp(
     let freqs: Vec<f64> = idx.iter().map(|&k| k as f64 * bin_hz).collect();
     let amps: Vec<f64> = idx.iter().map(|&k| spec[k]).collect();
     render_spectrum(
-        &out.path("spectrum.png")?,
+        &out.path(fmt.spectrum())?,
         &format!("chirp {} of {count}: frame at {:.3} s into the chirp", index + 1, off as f64 / fs),
         &freqs,
         &amps,

@@ -3,14 +3,15 @@
 
 use crate::echoes_csv::write_echoes;
 use crate::inputs::load_scene;
+use crate::mapout::{PlotFormat, map_outputs, map_summary, provenance, write_map};
 use crate::output::Staged;
-use crate::plot::{MapPlot, SpectrumPlot, render_map, render_spectrum};
-use crate::tables::{fmt_score, highlights_csv};
+use crate::plot::{MapPlot, SpectrumPlot, render_spectrum};
+use crate::tables::fmt_score;
 use anyhow::{Result, anyhow};
 use chirpmap::sim::{BIN_HZ, Measurement, Resolved, SimOutput};
 use chirpmap::{Point, Scene};
 use clap::Args;
-use serde_json::json;
+use serde_json::{Value, json};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -26,6 +27,9 @@ pub struct SimulateArgs {
     /// Master seed, overriding the scene's `seed` (0 to 2^63 − 1: scene.toml records it as a TOML integer).
     #[arg(long, value_parser = clap::value_parser!(u64).range(..=i64::MAX as u64))]
     pub seed: Option<u64>,
+    /// Figure format (map.png or map.svg, spectrum.png or spectrum.svg).
+    #[arg(long, value_enum, default_value_t = PlotFormat::Png)]
+    pub plot_format: PlotFormat,
     /// Also write spectra.csv, peaks.csv and spectrum.png (one listener spectrum with its peaks).
     #[arg(long)]
     pub spectra: bool,
@@ -33,16 +37,18 @@ pub struct SimulateArgs {
 
 pub fn run(args: &SimulateArgs) -> Result<()> {
     let started = Instant::now();
-    let mut outputs = vec!["echoes.csv", "highlights.csv", "scene.toml", "map.png", "summary.json"];
-    if args.spectra {
-        outputs.extend(["spectra.csv", "peaks.csv", "spectrum.png"]);
-    }
-    let inputs: Vec<&Path> = args.scene.iter().map(PathBuf::as_path).collect();
-    let mut staged = Staged::dir(&args.out, &outputs, &inputs)?;
     let (mut scene, name) = match &args.scene {
         Some(p) => (load_scene(p)?.0, p.display().to_string()),
         None => (Scene::default(), "default scene".to_string()),
     };
+    let fmt = args.plot_format;
+    let mut outputs = vec!["echoes.csv", "scene.toml", "summary.json"];
+    outputs.extend(map_outputs(scene.mapping.mapper, fmt));
+    if args.spectra {
+        outputs.extend(["spectra.csv", "peaks.csv", fmt.spectrum()]);
+    }
+    let inputs: Vec<&Path> = args.scene.iter().map(PathBuf::as_path).collect();
+    let mut staged = Staged::dir(&args.out, &outputs, &inputs)?;
     if let Some(seed) = args.seed {
         scene.seed = seed;
     }
@@ -53,13 +59,12 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
     let mut echoes_csv = Vec::new();
     write_echoes(&mut echoes_csv, &out.echoes)?;
     staged.write("echoes.csv", echoes_csv)?;
-    staged.write("highlights.csv", highlights_csv(&map.highlights))?;
     staged.write("scene.toml", resolved_scene_toml(resolved))?;
     let path = trajectory_points(resolved);
     let radius = resolved.listeners.first().map(|l| l.radius_m);
-    let png = staged.path("map.png")?;
-    render_map(
-        &png,
+    write_map(
+        &mut staged,
+        map,
         &MapPlot {
             title: format!(
                 "seed {}: {} echoes, {} highlights, score_obstacle {}, score_highlight {}",
@@ -76,15 +81,14 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
             listener_radius_m: radius,
             obstacles: &resolved.obstacles,
         },
+        fmt,
     )?;
     if args.spectra {
-        write_spectra(&mut staged, resolved, out)?;
+        write_spectra(&mut staged, resolved, out, fmt)?;
     }
-    let spec = map.spec();
-    let summary = json!({
-        "score_obstacle": so,
-        "score_highlight": sh,
-        "n_highlights": map.highlights.len(),
+    let eval = chirpmap::evaluate(&resolved.obstacles, map);
+    let mut summary = map_summary(map, Some(&eval));
+    let sim = json!({
         "n_echoes": out.echoes.len(),
         "n_measurements": out.measurements.len(),
         "n_obstacles": resolved.obstacles.len(),
@@ -92,10 +96,13 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
         "seed": resolved.scene.seed,
         "run_index": resolved.scene.run_index,
         "simulated_s": resolved.last_tick as f64 * resolved.tick_s,
-        "grid": { "bounds": [spec.x_min_m, spec.y_min_m, spec.x_max_m(), spec.y_max_m()], "nx": spec.nx, "ny": spec.ny, "cell": spec.cell_m },
         "simulate_elapsed_s": run.simulate_elapsed_s,
         "elapsed_s": started.elapsed().as_secs_f64(),
+        "run": provenance(),
     });
+    if let (Some(s), Value::Object(fields)) = (summary.as_object_mut(), sim) {
+        s.extend(fields);
+    }
     staged.write("summary.json", serde_json::to_string_pretty(&summary)? + "\n")?;
     let dir = staged.commit()?;
     say!(
@@ -161,7 +168,7 @@ fn peak_rows(r: &Resolved, m: &Measurement) -> Vec<PeakRow> {
         .collect()
 }
 
-fn write_spectra(staged: &mut Staged, r: &Resolved, out: &SimOutput) -> Result<()> {
+fn write_spectra(staged: &mut Staged, r: &Resolved, out: &SimOutput, fmt: PlotFormat) -> Result<()> {
     let mut spectra = String::from("listener,t,listener_x,listener_y,f_lo_hz,f_hi_hz,loudness\n");
     let mut peaks = String::from("listener,t,f_hz,intensity,lo_hz,hi_hz,kind,delta_d\n");
     for m in &out.measurements {
@@ -197,7 +204,7 @@ fn write_spectra(staged: &mut Staged, r: &Resolved, out: &SimOutput) -> Result<(
         .max_by_key(|m| (echoes_of(m), std::cmp::Reverse(m.tick)));
     let (f_a, f_b) = (r.sweep.f_start_hz(), r.sweep.f_end_hz());
     let f_range_hz = (f_a.min(f_b) - 100.0, f_a.max(f_b) + 100.0);
-    let png = staged.path("spectrum.png")?;
+    let png = staged.path(fmt.spectrum())?;
     match best {
         Some(m) => {
             let bins: Vec<(f64, f64)> = m.bins.iter().map(|&(b, v)| (b as f64 * BIN_HZ, v)).collect();

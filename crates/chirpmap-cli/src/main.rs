@@ -18,6 +18,7 @@ mod cmd_synth;
 mod echoes_csv;
 mod inputs;
 mod mapdata;
+mod mapout;
 mod output;
 mod plot;
 mod plot_audio;

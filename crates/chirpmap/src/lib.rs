@@ -14,6 +14,7 @@
 //! | simulate a scene (particle model, §II.B), map and score it | [`simulate`] |
 //! | map echoes you measured (Algorithm 1, or the evidence mapper) | [`map_echoes`] |
 //! | score highlights against known obstacles (§V.A) | [`score`] |
+//! | score a map and its surfaces (F1, Chamfer, wall errors) | [`evaluate`] |
 //! | synthesize what the listeners record | [`synth`] |
 //! | range a recording: Δd per chirp (§IV) | [`prepare`] then [`range`] |
 //! | a moving listener's recording to echoes, then a map | [`echoes_from_recording`] then [`map_echoes`] |
@@ -50,12 +51,15 @@ pub use chirpmap_sim as sim;
 
 pub use chirpmap_audio::synth::Synthesized;
 pub use chirpmap_audio::{Method, SynthConfig};
+pub use chirpmap_core::metrics::{SurfaceMetrics, WallMatch};
 pub use chirpmap_core::{
     Echo, EvidenceParams, Grid, GridSpec, Highlight, MapperKind, MappingParams, Obstacle, Point, Scene, Surface,
     SurfaceKind,
 };
 pub use error::{Error, Result};
-pub use mapping::{MapOptions, MapResult, Scores, covering_bounds, foci, map_echoes, map_on_grid, score};
+pub use mapping::{
+    Evaluation, MapOptions, MapResult, Scores, covering_bounds, evaluate, foci, map_echoes, map_on_grid, score,
+};
 pub use recording::{
     ChirpSpec, ChirpSummary, FrameParams, MethodSummary, PoseTrack, Prepared, RangeGeometry, RangeReport, RangeSummary,
     RecordingEchoes, SPEED_OF_SOUND_RANGE_MPS, WallStats, echoes_from_recording, prepare, range, wall_distance,

@@ -2,9 +2,10 @@
 
 use crate::error::{Error, Result};
 use chirpmap_core::grid::DEFAULT_MEMORY_CAP_BYTES;
+use chirpmap_core::metrics::{MetricParams, SurfaceMetrics, surface_metrics};
 use chirpmap_core::{
     AccumulationMapper, Echo, Grid, GridSpec, Highlight, Mapper, MapperKind, MappingParams, Obstacle, Point, Surface,
-    map_evidence, score_highlight, score_obstacle,
+    SurfaceKind, map_evidence, score_highlight, score_obstacle,
 };
 use serde::Serialize;
 use std::collections::HashSet;
@@ -73,6 +74,39 @@ pub fn score(obstacles: &[Obstacle], highlights: &[Point]) -> Scores {
     Scores {
         score_obstacle: score_obstacle(obstacles, highlights),
         score_highlight: score_highlight(obstacles, highlights),
+    }
+}
+
+/// How well a map describes the true obstacles: the paper's two scores
+/// (§V.A) and the surface metrics of `chirpmap_core::metrics` (precision,
+/// recall and F1 within 0.1 m, Chamfer distance, per wall the offset and
+/// angle of its best line).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Evaluation {
+    /// The paper's scores of the highlights.
+    pub scores: Scores,
+    /// Surface metrics: of the surfaces (evidence mapper), or of the
+    /// highlights taken as point surfaces (paper mapper), so both mappers
+    /// are measured alike.
+    pub surfaces: SurfaceMetrics,
+}
+
+/// Evaluates `map` against the true `obstacles`.
+pub fn evaluate(obstacles: &[Obstacle], map: &MapResult) -> Evaluation {
+    let points;
+    let surfaces: &[Surface] = if map.surfaces.is_empty() {
+        points = map
+            .highlights
+            .iter()
+            .map(|h| Surface { kind: SurfaceKind::Point, p0: h.pos, p1: h.pos, support: 1, ambiguous: false })
+            .collect::<Vec<_>>();
+        &points
+    } else {
+        &map.surfaces
+    };
+    Evaluation {
+        scores: score(obstacles, &map.highlight_points()),
+        surfaces: surface_metrics(surfaces, obstacles, None, &MetricParams::default()),
     }
 }
 

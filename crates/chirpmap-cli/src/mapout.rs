@@ -1,0 +1,128 @@
+//! The files of a map, written alike by `simulate` and `map`: highlights,
+//! surfaces, the grid as data (NumPy and ROS map_server), the figure, and
+//! the summary's map fields.
+
+use crate::mapdata::{MapValues, npy_bytes, ros_map};
+use crate::output::Staged;
+use crate::plot::{ColourMap, MapPlot, MapStyle, render_map_with};
+use crate::tables::{highlights_csv, surfaces_csv};
+use anyhow::Result;
+use chirpmap::{Evaluation, Grid, MapResult, MapperKind};
+use clap::ValueEnum;
+use serde_json::{Value, json};
+
+/// Figure file format.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ValueEnum)]
+pub enum PlotFormat {
+    /// Raster (PNG).
+    #[default]
+    Png,
+    /// Vector (SVG), for papers.
+    Svg,
+}
+
+impl PlotFormat {
+    /// The map figure's file name.
+    pub fn map(self) -> &'static str {
+        self.pick("map.png", "map.svg")
+    }
+    /// The spectrum figure's file name.
+    pub fn spectrum(self) -> &'static str {
+        self.pick("spectrum.png", "spectrum.svg")
+    }
+    /// The spectrogram figure's file name.
+    pub fn spectrogram(self) -> &'static str {
+        self.pick("spectrogram.png", "spectrogram.svg")
+    }
+    fn pick(self, png: &'static str, svg: &'static str) -> &'static str {
+        match self {
+            Self::Png => png,
+            Self::Svg => svg,
+        }
+    }
+}
+
+/// The files a map writes with `mapper`.
+pub fn map_outputs(mapper: MapperKind, fmt: PlotFormat) -> Vec<&'static str> {
+    let mut v = vec!["highlights.csv", "map.npy", "map.pgm", "map.yaml", fmt.map()];
+    if mapper == MapperKind::Evidence {
+        v.push("surfaces.csv");
+    }
+    v
+}
+
+/// Writes the map's files into `out` (declared by [`map_outputs`]).
+pub fn write_map(out: &mut Staged, map: &MapResult, plot: &MapPlot, fmt: PlotFormat) -> Result<()> {
+    out.write("highlights.csv", highlights_csv(&map.highlights))?;
+    out.write("map.npy", npy_bytes(&map.grid)?)?;
+    let ros = match map.params.mapper {
+        MapperKind::Paper => ros_map(&map.grid, MapValues::Evidence, "map.pgm")?,
+        MapperKind::Evidence => {
+            // Log-odds L → occupancy probability 1 / (1 + e^−L).
+            let p =
+                Grid { spec: map.grid.spec, data: map.grid.data.iter().map(|l| 1.0 / (1.0 + (-l).exp())).collect() };
+            ros_map(&p, MapValues::Probability, "map.pgm")?
+        }
+    };
+    out.write("map.pgm", ros.pgm)?;
+    out.write("map.yaml", ros.yaml)?;
+    let drawn: Vec<((f64, f64), (f64, f64), bool)> =
+        map.surfaces.iter().map(|s| ((s.p0.x, s.p0.y), (s.p1.x, s.p1.y), s.ambiguous)).collect();
+    let style = match map.params.mapper {
+        MapperKind::Paper => MapStyle::default(),
+        MapperKind::Evidence => {
+            MapStyle { surfaces: &drawn, colour_map: ColourMap::default(), value_label: Some("log-odds of occupancy") }
+        }
+    };
+    if map.params.mapper == MapperKind::Evidence {
+        out.write("surfaces.csv", surfaces_csv(&map.surfaces))?;
+    }
+    let fig = out.path(fmt.map())?;
+    render_map_with(&fig, plot, &style)
+}
+
+/// The summary fields of a map (and of its evaluation, with a scene).
+pub fn map_summary(map: &MapResult, eval: Option<&Evaluation>) -> Value {
+    let spec = map.spec();
+    let mut s = json!({
+        "mapper": map.params.mapper,
+        "n_highlights": map.highlights.len(),
+        "n_surfaces": map.surfaces.len(),
+        "cells_updated": map.cells_updated,
+        "grid": {
+            "bounds": [spec.x_min_m, spec.y_min_m, spec.x_max_m(), spec.y_max_m()],
+            "nx": spec.nx,
+            "ny": spec.ny,
+            "cell": spec.cell_m,
+            "values": match map.params.mapper {
+                MapperKind::Paper => "accumulated weight",
+                MapperKind::Evidence => "log-odds of occupancy",
+            },
+        },
+    });
+    if let Some(e) = eval {
+        s["score_obstacle"] = json!(e.scores.score_obstacle);
+        s["score_highlight"] = json!(e.scores.score_highlight);
+        let m = &e.surfaces;
+        s["surface_precision"] = json!(m.precision);
+        s["surface_recall"] = json!(m.recall);
+        s["surface_f1"] = json!(m.f1);
+        s["chamfer_m"] = json!(m.chamfer_m);
+        s["walls"] = m
+            .walls
+            .iter()
+            .map(
+                |w| json!({"a": [w.a.x, w.a.y], "b": [w.b.x, w.b.y], "offset_m": w.offset_m, "angle_deg": w.angle_deg}),
+            )
+            .collect();
+    }
+    s
+}
+
+/// What every summary records about the run: the version and the command line.
+pub fn provenance() -> Value {
+    json!({
+        "chirpmap_version": env!("CARGO_PKG_VERSION"),
+        "command_line": std::env::args().collect::<Vec<_>>(),
+    })
+}
