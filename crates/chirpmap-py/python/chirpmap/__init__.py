@@ -1,0 +1,390 @@
+"""chirpmap: turn sound into maps.
+
+The pipeline of *Acoustic Ellipses* (Swissler, Burke, Hyland Bruno, 2026): a
+stationary Source plays a frequency sweep, a moving Listener hears the direct
+and the reflected sound at once, each frequency gap is a path-length
+difference Δd (paper Eq. 1-3), each Δd an ellipse of possible reflection
+points (Eq. 4), and ellipses accumulated on a grid reveal obstacles
+(Algorithm 1), which the scores of §V.A judge.
+
+This package wraps the Rust library (crate ``chirpmap``) that the
+``chirpmap`` command-line tool runs, so the numbers are the CLI's, bit for
+bit, for the same inputs:
+
+>>> import chirpmap, matplotlib.pyplot as plt
+>>> run = chirpmap.simulate(seed=3)
+>>> plt.imshow(run.grid, extent=run.extent, origin="lower")
+
+Functions: :func:`simulate`, :func:`map_echoes`, :func:`synth`, :func:`range`.
+Arrays come back as numpy arrays that own Rust's buffers (no copies); every
+long step runs with the GIL released. Bad input raises :class:`ValueError`
+with the CLI's message.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
+
+import numpy as np
+
+from . import _chirpmap
+
+__version__: str = _chirpmap.__version__
+
+__all__ = [
+    "ECHO_COLUMNS",
+    "MapResult",
+    "Simulation",
+    "map_echoes",
+    "range",
+    "simulate",
+    "synth",
+]
+
+#: Columns of the echo arrays, as in echoes.csv: the first five are required;
+#: ``weight`` (default 1), ``t`` (s, default 0), ``listener`` (id, default 0)
+#: and ``sigma_m`` (1-σ uncertainty of ``delta_d``, m; NaN = none) may follow.
+ECHO_COLUMNS: Tuple[str, ...] = (
+    "source_x",
+    "source_y",
+    "listener_x",
+    "listener_y",
+    "delta_d",
+    "weight",
+    "t",
+    "listener",
+    "sigma_m",
+)
+
+SceneLike = Union[None, str, "os.PathLike[str]", Dict[str, Any]]
+
+
+@dataclass(frozen=True)
+class MapResult:
+    """A finished map.
+
+    Attributes:
+        grid: ``(ny, nx)`` float64 map, rows = y, row 0 at ``bounds[1]``:
+            accumulated ellipse weights (paper mapper) or log-odds of
+            occupancy (evidence mapper). Draw it with
+            ``plt.imshow(grid, extent=extent, origin="lower")``.
+        extent: ``(x_min, x_max, y_min, y_max)`` in m, matplotlib's
+            ``imshow`` order (note: not the order of ``bounds``).
+        bounds: ``(x_min, y_min, x_max, y_max)`` in m, the order of the
+            ``bounds`` argument and of the CLI's ``--bounds``.
+        cell: grid cell side (m).
+        highlights: ``(n, 3)`` float64 ``x, y, value``: local maxima of the
+            map, the rows of highlights.csv in the same order.
+        surfaces: reflecting surfaces found by the evidence mapper (empty
+            with the paper's mapper), strongest first, each a dict with
+            ``kind`` ("line" or "point"), ``x0, y0, x1, y1`` (a point's
+            ``x1, y1`` equal ``x0, y0``), ``support`` (echoes explained) and
+            ``ambiguous`` (mirror-ambiguous: collinear foci).
+        cells_updated: cell updates made while mapping (a work measure).
+        mapping: the mapping parameters used (the scene's ``[mapping]``).
+    """
+
+    grid: np.ndarray
+    extent: Tuple[float, float, float, float]
+    bounds: Tuple[float, float, float, float]
+    cell: float
+    highlights: np.ndarray
+    surfaces: List[Dict[str, Any]]
+    cells_updated: int
+    mapping: Dict[str, Any] = field(repr=False)
+
+    def __repr__(self) -> str:
+        ny, nx = self.grid.shape
+        return (
+            f"MapResult(grid={ny}x{nx}, extent={self.extent}, "
+            f"highlights={len(self.highlights)}, surfaces={len(self.surfaces)})"
+        )
+
+
+@dataclass(frozen=True, repr=False)
+class Simulation(MapResult):
+    """One simulated run (paper §II.B): echoes, their map and its scores.
+
+    Besides the fields of :class:`MapResult` (the map on the scene's world):
+
+    Attributes:
+        echoes: ``(n, 8)`` float64 in the columns of echoes.csv
+            (:data:`ECHO_COLUMNS` without ``sigma_m``), the CLI's rows.
+        scores: ``{"score_obstacle": float | None, "score_highlight":
+            float | None}`` (paper §V.A; None when the scene has no obstacles).
+        scene: the resolved scene as TOML (random obstacles listed, duration
+            explicit): ``simulate(run.scene)`` replays the run exactly.
+        seed: the master seed used.
+        n_measurements: listener measurements taken.
+        n_obstacles: obstacles in the scene.
+        simulate_elapsed_s: wall time of the particle simulation alone (s).
+    """
+
+    echoes: np.ndarray = field(default_factory=lambda: np.zeros((0, 8)))
+    scores: Dict[str, Optional[float]] = field(default_factory=dict)
+    scene: str = ""
+    seed: int = 0
+    n_measurements: int = 0
+    n_obstacles: int = 0
+    simulate_elapsed_s: float = 0.0
+
+    def __repr__(self) -> str:
+        return (
+            f"Simulation(seed={self.seed}, echoes={len(self.echoes)}, "
+            f"highlights={len(self.highlights)}, scores={self.scores})"
+        )
+
+
+def _map_kwargs(d: Dict[str, Any]) -> Dict[str, Any]:
+    d = dict(d)
+    d["mapping"] = json.loads(d["mapping"])
+    return d
+
+
+def _scene_source(scene: SceneLike) -> Tuple[str, str]:
+    """(kind, payload) for the compiled module: how to read ``scene``."""
+    if scene is None:
+        return "default", ""
+    if isinstance(scene, dict):
+        try:
+            return "json", json.dumps(scene, allow_nan=False)
+        except (TypeError, ValueError) as e:
+            raise ValueError(f"scene dict: {e}") from None
+    if isinstance(scene, os.PathLike):
+        return "path", os.fspath(scene)
+    if isinstance(scene, str):
+        # TOML text holds a key (`=`), a table header or a line break; a bare
+        # name is a path, so a missing file is reported as one.
+        if "=" in scene or "[" in scene or "\n" in scene or scene.strip() == "":
+            if os.path.isfile(scene):
+                return "path", scene
+            return "toml", scene
+        return "path", scene
+    raise TypeError(
+        f"scene must be None, a dict, TOML text or a path, not {type(scene).__name__}"
+    )
+
+
+def simulate(scene: SceneLike = None, seed: Optional[int] = None) -> Simulation:
+    """Simulate a scene with the paper's particle model, map it, score it.
+
+    The same as ``chirpmap simulate [SCENE.toml] --seed SEED``: the same
+    echoes, map, highlights and scores, bit for bit.
+
+    Args:
+        scene: ``None`` for the paper's default scene (three random circles,
+            one listener at 10 m/s); a dict shaped like the scene TOML
+            (``{"seed": 3, "listeners": [{"start": [-2, 10]}]}``); TOML text;
+            or the path (str or ``os.PathLike``) of a scene file. Every field
+            is optional, unknown keys are errors (see the README's table).
+        seed: master seed (0 to 2**63 - 1), overriding the scene's ``seed``.
+
+    Returns:
+        A :class:`Simulation`.
+
+    Raises:
+        ValueError: the scene is invalid (the message names the field).
+    """
+    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int)):
+        raise TypeError(f"seed must be an int, not {type(seed).__name__}")
+    if seed is not None and not 0 <= seed <= 2**63 - 1:
+        raise ValueError(
+            f"seed: must be between 0 and 2^63 - 1 (scene.toml records it as a TOML integer), got {seed}"
+        )
+    kind, payload = _scene_source(scene)
+    d = _chirpmap.simulate(kind, payload, seed)
+    return Simulation(**_map_kwargs(d))
+
+
+def map_echoes(
+    echoes: Any,
+    bounds: Optional[Sequence[float]] = None,
+    cell: float = 0.1,
+    mapper: str = "paper",
+    keep_top: float = 0.1,
+    min_of_max: float = 0.01,
+    peak_radius: float = 5.0,
+    sigma: Union[None, float, Any] = None,
+    evidence: Optional[Dict[str, Any]] = None,
+    ellipse_points: int = 0,
+) -> MapResult:
+    """Map echoes: Algorithm 1 of the paper, or the evidence mapper.
+
+    The same as ``chirpmap map --echoes E.csv`` with the same options: the
+    same grid, highlights (highlights.csv) and surfaces (surfaces.csv).
+
+    Args:
+        echoes: ``(n, k)`` array-like, ``k`` from 5 to 9, in the columns of
+            echoes.csv (:data:`ECHO_COLUMNS`): ``source_x, source_y,
+            listener_x, listener_y, delta_d`` then optionally ``weight``
+            (default 1), ``t`` (s), ``listener`` (integer id) and ``sigma_m``
+            (m, NaN = none). A C-contiguous float64 array is read in place.
+        bounds: grid bounds ``(x_min, y_min, x_max, y_max)`` in m; ``None``
+            covers every ellipse (snapped outward to whole cells, plus one).
+        cell: grid cell side (m). Paper: 0.1.
+        mapper: ``"paper"`` (Algorithm 1) or ``"evidence"`` (surfaces, free
+            space, ghosts removed; the map is log-odds of occupancy).
+        keep_top: fraction of non-zero cells kept by the percentile threshold.
+        min_of_max: cells below this fraction of the maximum are zeroed.
+        peak_radius: a highlight is the maximum within this radius (m).
+        sigma: the 1-σ uncertainty of Δd (m) for the evidence mapper: one
+            number for every echo, or an ``(n,)`` array (NaN = none); it
+            replaces the ``sigma_m`` column. Echoes without one use
+            ``evidence["default_sigma_m"]``.
+        evidence: the evidence mapper's parameters (the scene's
+            ``[mapping.evidence]`` table), e.g. ``{"min_support": 8}``.
+        ellipse_points: 0 (Algorithm 1 as stated) or N points per ellipse
+            (the authors' implementation, §II.C), paper mapper only.
+
+    Returns:
+        A :class:`MapResult`.
+
+    Raises:
+        ValueError: bad echoes (the message names the row and column) or
+            parameters, or a grid too large for the memory cap.
+    """
+    arr = np.ascontiguousarray(echoes, dtype=np.float64)
+    if arr.ndim != 2:
+        raise ValueError(f"echoes must be a 2-D array (n, 5..9), got {arr.ndim} dimension(s)")
+    sig = None
+    if sigma is not None:
+        sig = np.ascontiguousarray(
+            np.broadcast_to(np.asarray(sigma, dtype=np.float64), (arr.shape[0],))
+        )
+    b = None
+    if bounds is not None:
+        b = [float(v) for v in bounds]
+        if len(b) != 4:
+            raise ValueError(f"bounds: expected (x_min, y_min, x_max, y_max), got {len(b)} values")
+    ev = None
+    if evidence is not None:
+        try:
+            ev = json.dumps(evidence, allow_nan=False)
+        except (TypeError, ValueError) as e:
+            raise ValueError(f"evidence: {e}") from None
+    if isinstance(ellipse_points, bool) or not isinstance(ellipse_points, int):
+        raise TypeError("ellipse_points must be an int")
+    if not 0 <= ellipse_points <= 2**32 - 1:
+        raise ValueError(f"ellipse_points: must be >= 0, got {ellipse_points}")
+    d = _chirpmap.map_echoes(
+        arr,
+        sig,
+        b,
+        float(cell),
+        float(keep_top),
+        float(min_of_max),
+        float(peak_radius),
+        ellipse_points,
+        str(mapper),
+        ev,
+    )
+    return MapResult(**_map_kwargs(d))
+
+
+def synth(scene: SceneLike = None) -> Tuple[np.ndarray, int, List[np.ndarray]]:
+    """Render what every listener of a scene records (``chirpmap synth``).
+
+    The chirp train, the direct path, specular reflections and noise, with
+    exact per-sample propagation delays (a moving listener's Doppler is in
+    the signal). The scene's optional ``[synth]`` table (a ``"synth"`` key of
+    a dict) sets chirps, gap_s, snr_db, sample_rate_hz, ...
+
+    Args:
+        scene: as for :func:`simulate`.
+
+    Returns:
+        ``(samples, sample_rate, poses)``: ``samples`` is an ``(n_samples,
+        n_listeners)`` float32 array (full scale = 1, before the WAV's
+        quantisation), ``sample_rate`` in Hz, and ``poses`` one ``(m, 3)``
+        float64 array ``t, x, y`` per listener (every ``pose_period_s``).
+    """
+    kind, payload = _scene_source(scene)
+    return _chirpmap.synth(kind, payload)
+
+
+_METHODS = ("gap", "matched", "dechirp")
+
+
+def range(  # noqa: A001 - the name the issue and the CLI use
+    samples: Any,
+    sample_rate: float,
+    speaker: Sequence[float],
+    mic: Sequence[float],
+    wall_normal: Optional[Sequence[float]] = None,
+    method: str = "matched",
+    f_start: float = 10000.0,
+    f_end: float = 200.0,
+    duration: float = 0.5,
+    speed_of_sound: float = 343.0,
+    max_delta_d: Optional[float] = None,
+    compare: bool = False,
+    channel: int = 0,
+) -> Dict[str, Any]:
+    """Range a recording: Δd to the first reflection of every chirp (§IV).
+
+    The same as ``chirpmap range REC.wav --speaker X,Y --mic X,Y --method M``
+    on a recording with these samples: the summary holds the keys of its
+    summary.json (without ``wav``, ``clipped_samples`` and ``elapsed_s``,
+    which describe the file and the run), with equal values.
+
+    Args:
+        samples: 1-D array of samples (converted to float32, as a WAV is
+            read), or 2-D ``(n_samples, n_channels)`` with ``channel``.
+        sample_rate: Hz.
+        speaker: speaker position ``(x, y)`` (m).
+        mic: microphone position ``(x, y)`` (m).
+        wall_normal: direction from the speaker toward the wall; adds
+            ``wall_distance_median`` and ``wall_distance_ci95``.
+        method: ``"gap"`` (the paper's), ``"matched"`` or ``"dechirp"``.
+        f_start, f_end: chirp start and end frequency (Hz).
+        duration: chirp duration T (s).
+        speed_of_sound: m/s.
+        max_delta_d: largest path difference searched (m); default
+            min(60, a·T/2).
+        compare: run all three methods; ``compare`` lists each one's summary.
+        channel: the column of 2-D ``samples`` to range.
+
+    Returns:
+        dict: ``method, chirps, estimates, delta_d_median, delta_d_ci95``
+        (and the wall distances), ``sample_rate_hz, recording_s, speaker,
+        mic, chirp, max_delta_d_m, gap_resolution_floor_m`` (and
+        ``compare``).
+    """
+    x = np.asarray(samples)
+    if x.ndim == 2:
+        if not 0 <= channel < x.shape[1]:
+            raise ValueError(f"channel: {channel} is not a channel of {x.shape[1]}")
+        x = x[:, channel]
+    elif x.ndim != 1:
+        raise ValueError(f"samples must be 1-D or 2-D, got {x.ndim} dimensions")
+    x = np.ascontiguousarray(x, dtype=np.float32)
+    if method not in _METHODS:
+        raise ValueError(f"method: unknown method {method!r}: use gap, matched or dechirp")
+    methods = list(_METHODS) if compare else [method]
+    primary = methods.index(method)
+    wn = None if wall_normal is None else _point("wall_normal", wall_normal)
+    text = _chirpmap.range(
+        x,
+        float(sample_rate),
+        _point("speaker", speaker),
+        _point("mic", mic),
+        wn,
+        methods,
+        primary,
+        float(f_start),
+        float(f_end),
+        float(duration),
+        float(speed_of_sound),
+        None if max_delta_d is None else float(max_delta_d),
+    )
+    return json.loads(text)
+
+
+def _point(name: str, p: Sequence[float]) -> List[float]:
+    v = [float(c) for c in p]
+    if len(v) != 2:
+        raise ValueError(f"{name}: expected (x, y), got {len(v)} values")
+    return v

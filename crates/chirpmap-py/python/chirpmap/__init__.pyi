@@ -1,0 +1,77 @@
+"""Type stubs of chirpmap (see __init__.py for the full docstrings)."""
+
+import os
+from dataclasses import dataclass
+from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
+
+import numpy as np
+import numpy.typing as npt
+
+__version__: str
+ECHO_COLUMNS: Tuple[str, ...]
+
+SceneLike = Union[None, str, os.PathLike[str], Dict[str, Any]]
+
+@dataclass(frozen=True)
+class MapResult:
+    """A finished map: grid (ny, nx) rows = y, extent (x_min, x_max, y_min, y_max)."""
+
+    grid: npt.NDArray[np.float64]
+    extent: Tuple[float, float, float, float]
+    bounds: Tuple[float, float, float, float]
+    cell: float
+    highlights: npt.NDArray[np.float64]
+    surfaces: List[Dict[str, Any]]
+    cells_updated: int
+    mapping: Dict[str, Any]
+
+@dataclass(frozen=True)
+class Simulation(MapResult):
+    """One simulated run: echoes (n, 8), its map, scores and resolved scene."""
+
+    echoes: npt.NDArray[np.float64]
+    scores: Dict[str, Optional[float]]
+    scene: str
+    seed: int
+    n_measurements: int
+    n_obstacles: int
+    simulate_elapsed_s: float
+
+def simulate(scene: SceneLike = None, seed: Optional[int] = None) -> Simulation:
+    """Simulate a scene (particle model, paper §II.B), map it and score it."""
+
+def map_echoes(
+    echoes: npt.ArrayLike,
+    bounds: Optional[Sequence[float]] = None,
+    cell: float = 0.1,
+    mapper: str = "paper",
+    keep_top: float = 0.1,
+    min_of_max: float = 0.01,
+    peak_radius: float = 5.0,
+    sigma: Union[None, float, npt.ArrayLike] = None,
+    evidence: Optional[Dict[str, Any]] = None,
+    ellipse_points: int = 0,
+) -> MapResult:
+    """Map echoes (n, 5..9) with Algorithm 1 or the evidence mapper."""
+
+def synth(
+    scene: SceneLike = None,
+) -> Tuple[npt.NDArray[np.float32], int, List[npt.NDArray[np.float64]]]:
+    """Render what each listener records: (samples (n, listeners), rate, poses)."""
+
+def range(
+    samples: npt.ArrayLike,
+    sample_rate: float,
+    speaker: Sequence[float],
+    mic: Sequence[float],
+    wall_normal: Optional[Sequence[float]] = None,
+    method: str = "matched",
+    f_start: float = 10000.0,
+    f_end: float = 200.0,
+    duration: float = 0.5,
+    speed_of_sound: float = 343.0,
+    max_delta_d: Optional[float] = None,
+    compare: bool = False,
+    channel: int = 0,
+) -> Dict[str, Any]:
+    """Range a recording (paper §IV): the keys of range's summary.json."""

@@ -1,0 +1,39 @@
+"""The compiled module; use the functions of `chirpmap` instead."""
+
+from typing import Any, Dict, List, Optional, Tuple
+
+import numpy as np
+import numpy.typing as npt
+
+__version__: str
+
+def simulate(scene_kind: str, scene_payload: str, seed: Optional[int] = None) -> Dict[str, Any]: ...
+def map_echoes(
+    echoes: npt.NDArray[np.float64],
+    sigma: Optional[npt.NDArray[np.float64]],
+    bounds: Optional[List[float]],
+    cell: float,
+    keep_top: float,
+    min_of_max: float,
+    peak_radius: float,
+    ellipse_points: int,
+    mapper: str,
+    evidence_json: Optional[str],
+) -> Dict[str, Any]: ...
+def synth(
+    scene_kind: str, scene_payload: str
+) -> Tuple[npt.NDArray[np.float32], int, List[npt.NDArray[np.float64]]]: ...
+def range(
+    samples: npt.NDArray[np.float32],
+    sample_rate: float,
+    speaker: List[float],
+    mic: List[float],
+    wall_normal: Optional[List[float]],
+    methods: List[str],
+    primary: int,
+    f_start: float,
+    f_end: float,
+    duration: float,
+    speed_of_sound: float,
+    max_delta_d: Optional[float],
+) -> str: ...

@@ -1,0 +1,277 @@
+//! Plain-Rust halves of the bindings: rows of a numpy array to echoes and
+//! back, scenes from TOML, a dict (as JSON) or a file, and error text. No
+//! Python here, so the unit tests run without an interpreter.
+
+use chirpmap::core::error::Num;
+use chirpmap::core::geometry::MAX_COORD_M;
+use chirpmap::{Echo, EvidenceParams, Highlight, MapperKind, MappingParams, Point, Scene, Surface, SynthConfig};
+
+/// Columns of `echoes.csv` (DESIGN.md), in the order the bindings' N × k
+/// arrays use: the first five are required, then `weight`, `t`, `listener`
+/// and `sigma_m` (the 1-σ uncertainty of Δd, m; NaN = none).
+pub const ECHO_COLUMNS: [&str; 9] =
+    ["source_x", "source_y", "listener_x", "listener_y", "delta_d", "weight", "t", "listener", "sigma_m"];
+
+/// The message of an error and of every error below it, joined by `: `, as
+/// the CLI prints errors (`anyhow`'s `{:#}`), skipping a cause whose text
+/// the message already ends with (transparent wrappers repeat it).
+pub fn error_text(e: &dyn std::error::Error) -> String {
+    let mut text = e.to_string();
+    let mut cause = e.source();
+    while let Some(c) = cause {
+        let m = c.to_string();
+        if !text.ends_with(&m) {
+            text.push_str(": ");
+            text.push_str(&m);
+        }
+        cause = c.source();
+    }
+    text
+}
+
+/// Echoes from a row-major `n × cols` table (`cols` ∈ {5, 6, 7, 8, 9}, the
+/// columns of [`ECHO_COLUMNS`]), validated as the CLI validates echoes.csv:
+/// every value finite (but an absent `sigma_m` is NaN), positions within
+/// ±[`MAX_COORD_M`], `listener` a non-negative integer id, Δd ≥ 0, weight ≥ 0.
+/// `sigma_m`, when given, overrides or supplies the ninth column (NaN = none).
+pub fn echoes_from_rows(data: &[f64], cols: usize, sigma_m: Option<&[f64]>) -> Result<Vec<Echo>, String> {
+    if !(5..=9).contains(&cols) {
+        return Err(format!("echoes must have 5 to 9 columns ({}), got {cols}", ECHO_COLUMNS.join(",")));
+    }
+    if data.len() % cols != 0 {
+        return Err(format!("echoes: {} values do not make rows of {cols}", data.len()));
+    }
+    let n = data.len() / cols;
+    if let Some(s) = sigma_m {
+        if s.len() != n {
+            return Err(format!("sigma: {} values for {n} echoes", s.len()));
+        }
+    }
+    let mut echoes = Vec::with_capacity(n);
+    for (i, row) in data.chunks_exact(cols).enumerate() {
+        let at = |k: usize| -> Result<f64, String> {
+            let v = row[k];
+            if v.is_finite() { Ok(v) } else { Err(format!("echoes[{i}]: `{}` = {v} is not finite", ECHO_COLUMNS[k])) }
+        };
+        let optional = |k: usize, default: f64| if k < cols { at(k) } else { Ok(default) };
+        let (source, mic) = (Point::new(at(0)?, at(1)?), Point::new(at(2)?, at(3)?));
+        let delta_d_m = at(4)?;
+        let weight = optional(5, 1.0)?;
+        let t_s = optional(6, 0.0)?;
+        let listener = optional(7, 0.0)?;
+        if listener < 0.0 || listener.fract() != 0.0 || listener > f64::from(u32::MAX) {
+            return Err(format!("echoes[{i}]: `listener` = {} must be a non-negative integer id", Num(listener)));
+        }
+        for (what, p) in [("source", source), ("listener", mic)] {
+            if !p.is_sane() {
+                return Err(format!("echoes[{i}]: {what} {p} is beyond ±{} m", Num(MAX_COORD_M)));
+            }
+        }
+        let mut echo =
+            Echo::new(source, mic, delta_d_m, weight, t_s, listener as u32).map_err(|e| format!("echoes[{i}]: {e}"))?;
+        let sigma = match sigma_m {
+            Some(s) => s[i],
+            None if cols == 9 => row[8],
+            None => f64::NAN,
+        };
+        if !sigma.is_nan() {
+            if !(sigma.is_finite() && sigma > 0.0) {
+                return Err(format!(
+                    "echoes[{i}]: `sigma_m` = {} must be > 0 (the 1-σ uncertainty of delta_d, m)",
+                    Num(sigma)
+                ));
+            }
+            echo = echo.with_sigma_m(sigma).map_err(|e| format!("echoes[{i}]: {e}"))?;
+        }
+        echoes.push(echo);
+    }
+    Ok(echoes)
+}
+
+/// Echoes as a row-major `n × 9` table in [`ECHO_COLUMNS`] order (`sigma_m`
+/// NaN where absent), or `n × 8` when no echo has a `sigma_m` — the columns
+/// `echoes.csv` holds.
+pub fn echoes_to_rows(echoes: &[Echo]) -> (Vec<f64>, usize) {
+    let with_sigma = echoes.iter().any(|e| e.sigma_m.is_some());
+    let cols = if with_sigma { 9 } else { 8 };
+    let mut v = Vec::with_capacity(echoes.len() * cols);
+    for e in echoes {
+        v.extend([
+            e.source.x,
+            e.source.y,
+            e.listener.x,
+            e.listener.y,
+            e.delta_d_m,
+            e.weight,
+            e.t_s,
+            f64::from(e.listener_id),
+        ]);
+        if with_sigma {
+            v.push(e.sigma_m.unwrap_or(f64::NAN));
+        }
+    }
+    (v, cols)
+}
+
+/// Highlights as a row-major `n × 3` table `x, y, value` (highlights.csv).
+pub fn highlights_to_rows(highlights: &[Highlight]) -> Vec<f64> {
+    highlights.iter().flat_map(|h| [h.pos.x, h.pos.y, h.value]).collect()
+}
+
+/// A surface as the fields of surfaces.csv: `kind, x0, y0, x1, y1, support,
+/// ambiguous` (a point's `x1, y1` equal its `x0, y0`).
+pub fn surface_fields(s: &Surface) -> (&'static str, [f64; 4], usize, bool) {
+    let kind = match s.kind {
+        chirpmap::SurfaceKind::Line => "line",
+        chirpmap::SurfaceKind::Point => "point",
+    };
+    (kind, [s.p0.x, s.p0.y, s.p1.x, s.p1.y], s.support, s.ambiguous)
+}
+
+/// Where a scene comes from (decided by the Python wrapper).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SceneSource<'a> {
+    /// The paper's default scene.
+    Default,
+    /// Scene TOML text.
+    Toml(&'a str),
+    /// A dict, serialised by Python's `json.dumps`.
+    Json(&'a str),
+    /// A scene file.
+    Path(&'a str),
+}
+
+/// The scene and its `[synth]` table, plus a name for error messages (the
+/// file's path, as the CLI names it).
+pub fn load_scene(src: SceneSource<'_>) -> Result<(Scene, SynthConfig, String), String> {
+    match src {
+        SceneSource::Default => Ok((Scene::default(), SynthConfig::default(), "default scene".into())),
+        SceneSource::Toml(text) => {
+            let (s, c) = chirpmap::parse_scene(text).map_err(|e| format!("scene: {}", error_text(&e)))?;
+            Ok((s, c, "scene".into()))
+        }
+        SceneSource::Json(json) => {
+            let table: toml::Table =
+                serde_json::from_str(json).map_err(|e| format!("scene dict: not a TOML table: {e}"))?;
+            let text = toml::to_string(&table).map_err(|e| format!("scene dict: {e}"))?;
+            let (s, c) = chirpmap::parse_scene(&text).map_err(|e| format!("scene dict: {}", error_text(&e)))?;
+            Ok((s, c, "scene dict".into()))
+        }
+        SceneSource::Path(path) => {
+            let text =
+                std::fs::read_to_string(path).map_err(|e| format!("cannot read scene {path}: {}", error_text(&e)))?;
+            let (s, c) = chirpmap::parse_scene(&text).map_err(|e| format!("{path}: {}", error_text(&e)))?;
+            Ok((s, c, path.to_string()))
+        }
+    }
+}
+
+/// Algorithm 1's parameters (and the mapper) from the Python keywords; the
+/// evidence mapper's table comes as JSON of a dict (unknown keys refused).
+pub fn mapping_params(
+    cell: f64,
+    keep_top: f64,
+    min_of_max: f64,
+    peak_radius: f64,
+    ellipse_points: u32,
+    mapper: &str,
+    evidence_json: Option<&str>,
+) -> Result<MappingParams, String> {
+    let mapper = match mapper {
+        "paper" => MapperKind::Paper,
+        "evidence" => MapperKind::Evidence,
+        other => {
+            return Err(format!(
+                "mapper: {:?} is not a mapper (paper or evidence)",
+                chirpmap::core::error::excerpt(other, 0)
+            ));
+        }
+    };
+    let evidence: EvidenceParams = match evidence_json {
+        None => EvidenceParams::default(),
+        Some(j) => serde_json::from_str(j).map_err(|e| format!("evidence: {e}"))?,
+    };
+    let params = MappingParams { cell, keep_top, min_of_max, peak_radius, ellipse_points, mapper, evidence };
+    params.validate().map_err(|e| error_text(&e))?;
+    Ok(params)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(v: &[f64]) -> Result<Vec<Echo>, String> {
+        echoes_from_rows(v, v.len(), None)
+    }
+
+    #[test]
+    fn columns_default_as_in_echoes_csv() {
+        let e = row(&[0.0, 0.0, 1.0, 1.0, 2.0]).expect("valid");
+        assert_eq!((e[0].weight, e[0].t_s, e[0].listener_id, e[0].sigma_m), (1.0, 0.0, 0, None));
+        let e = row(&[0.0, 0.0, 1.0, 1.0, 2.0, 3.0, 0.5, 7.0, 0.05]).expect("valid");
+        assert_eq!((e[0].weight, e[0].t_s, e[0].listener_id, e[0].sigma_m), (3.0, 0.5, 7, Some(0.05)));
+        let e = row(&[0.0, 0.0, 1.0, 1.0, 2.0, 3.0, 0.5, 7.0, f64::NAN]).expect("valid");
+        assert_eq!(e[0].sigma_m, None);
+    }
+
+    #[test]
+    fn round_trip_through_rows() {
+        let data = [0.0, 0.0, 1.0, 1.0, 2.0, 3.0, 0.5, 7.0, 4.0, 5.0, -1.0, 2.5, 0.25, 1.0, 0.0, 0.0];
+        let e = echoes_from_rows(&data, 8, None).expect("valid");
+        let (back, cols) = echoes_to_rows(&e);
+        assert_eq!((back.as_slice(), cols), (&data[..], 8));
+        let s = [0.1, f64::NAN];
+        let e = echoes_from_rows(&data, 8, Some(&s)).expect("valid");
+        let (back, cols) = echoes_to_rows(&e);
+        assert_eq!(cols, 9);
+        assert_eq!(back[8], 0.1);
+        assert!(back[17].is_nan());
+    }
+
+    #[test]
+    fn bad_rows_name_row_and_column() {
+        let cases: [(&[f64], &str); 7] = [
+            (&[0.0, 0.0, 1.0, 1.0, f64::NAN], "echoes[0]: `delta_d` = NaN is not finite"),
+            (&[0.0, 0.0, 1.0, 1.0, -2.0], "echoes[0]: delta_d must be >= 0"),
+            (&[1.0, 1.0, 1.0, 1.0, 2.0], "echoes[0]: source and listener coincide"),
+            (&[0.0, 0.0, 1.0, 1.0, 2.0, -1.0], "echoes[0]: invalid mapping parameter weight"),
+            (&[0.0, 0.0, 1.0, 1.0, 2.0, 1.0, 0.0, 1.5], "`listener` = 1.5 must be a non-negative integer id"),
+            (&[1e300, 0.0, 1.0, 1.0, 2.0], "echoes[0]: source (1e300, 0) is beyond"),
+            (&[0.0, 0.0, 1.0, 1.0, 2.0, 1.0, 0.0, 0.0, 0.0], "`sigma_m` = 0 must be > 0"),
+        ];
+        for (v, want) in cases {
+            let err = row(v).expect_err(want);
+            assert!(err.contains(want), "{err:?} should contain {want:?}");
+        }
+        assert!(echoes_from_rows(&[0.0; 4], 4, None).expect_err("4 columns").contains("5 to 9 columns"));
+        assert!(echoes_from_rows(&[0.0; 5], 5, Some(&[1.0, 2.0])).expect_err("length").contains("sigma: 2 values"));
+    }
+
+    #[test]
+    fn scenes_from_text_dict_and_file() {
+        let (s, _, _) = load_scene(SceneSource::Toml("seed = 7")).expect("valid");
+        assert_eq!(s.seed, 7);
+        let (s, c, name) =
+            load_scene(SceneSource::Json(r#"{"seed": 9, "synth": {"chirps": 2}, "world": {"speed_of_sound": 340.0}}"#))
+                .expect("valid");
+        assert_eq!((s.seed, c.chirps, s.world.speed_of_sound, name.as_str()), (9, 2, 340.0, "scene dict"));
+        let err = load_scene(SceneSource::Json(r#"{"sede": 9}"#)).expect_err("unknown key");
+        assert!(err.starts_with("scene dict: ") && err.contains("sede"), "{err}");
+        let err = load_scene(SceneSource::Path("/nonexistent/scene.toml")).expect_err("missing");
+        assert!(err.starts_with("cannot read scene /nonexistent/scene.toml: "), "{err}");
+        assert_eq!(load_scene(SceneSource::Default).expect("default").0, Scene::default());
+    }
+
+    #[test]
+    fn mapping_params_refuse_bad_values() {
+        assert!(mapping_params(0.1, 0.1, 0.01, 5.0, 0, "paper", None).is_ok());
+        let err = mapping_params(0.1, 0.1, 0.01, 5.0, 0, "nope", None).expect_err("mapper");
+        assert!(err.contains("not a mapper"), "{err}");
+        let err = mapping_params(-1.0, 0.1, 0.01, 5.0, 0, "paper", None).expect_err("cell");
+        assert!(err.contains("cell"), "{err}");
+        let err = mapping_params(0.1, 0.1, 0.01, 5.0, 0, "evidence", Some(r#"{"angle_bins": 2}"#)).expect_err("bins");
+        assert!(err.contains("angle_bins"), "{err}");
+        let err = mapping_params(0.1, 0.1, 0.01, 5.0, 0, "evidence", Some(r#"{"bogus": 2}"#)).expect_err("unknown");
+        assert!(err.contains("bogus"), "{err}");
+    }
+}

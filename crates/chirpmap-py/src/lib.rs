@@ -1,0 +1,257 @@
+//! `chirpmap._chirpmap`: the compiled half of the Python package `chirpmap`
+//! (issue 12). It calls the facade crate [`chirpmap`] and nothing else, so
+//! Python gets the CLI's numbers bit for bit; the Python half
+//! (`python/chirpmap/__init__.py`) turns arguments into the plain types
+//! used here and wraps the results in documented dataclasses.
+//!
+//! Arrays leave without copies where Rust owns the buffer (a grid's
+//! `Vec<f64>` becomes the `(ny, nx)` array's memory), enter as read-only
+//! borrows of contiguous numpy buffers, and every step runs with the
+//! interpreter detached (`Python::detach`, pyo3 ≥ 0.26), so other Python
+//! threads run meanwhile. Every failure is a `ValueError` carrying the
+//! facade's message; nothing here panics on user data.
+
+pub mod convert;
+
+use chirpmap::audio::Method;
+use chirpmap::{ChirpSpec, MapOptions, MapResult, Point, RangeGeometry};
+use convert::{SceneSource, error_text};
+use numpy::ndarray::Array2;
+use numpy::{IntoPyArray, PyReadonlyArray1, PyReadonlyArray2};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+use pyo3::types::{PyDict, PyList};
+
+fn value_error(msg: impl Into<String>) -> PyErr {
+    PyValueError::new_err(msg.into())
+}
+
+fn scene_source<'a>(kind: &str, payload: &'a str) -> PyResult<SceneSource<'a>> {
+    match kind {
+        "default" => Ok(SceneSource::Default),
+        "toml" => Ok(SceneSource::Toml(payload)),
+        "json" => Ok(SceneSource::Json(payload)),
+        "path" => Ok(SceneSource::Path(payload)),
+        other => Err(value_error(format!("unknown scene kind {other:?}"))),
+    }
+}
+
+/// A row-major `rows × cols` table as a numpy array, moving the buffer.
+fn table<'py>(py: Python<'py>, data: Vec<f64>, cols: usize) -> PyResult<Bound<'py, PyAny>> {
+    let rows = data.len().checked_div(cols).unwrap_or(0);
+    let arr = Array2::from_shape_vec((rows, cols), data).map_err(|e| value_error(e.to_string()))?;
+    Ok(arr.into_pyarray(py).into_any())
+}
+
+/// The fields every map result has (see `MapResult` in `__init__.py`).
+fn map_fields<'py>(py: Python<'py>, d: &Bound<'py, PyDict>, map: MapResult) -> PyResult<()> {
+    let spec = map.grid.spec;
+    let (x0, y0, x1, y1) = (spec.x_min_m, spec.y_min_m, spec.x_max_m(), spec.y_max_m());
+    d.set_item("extent", (x0, x1, y0, y1))?;
+    d.set_item("bounds", (x0, y0, x1, y1))?;
+    d.set_item("cell", spec.cell_m)?;
+    d.set_item("cells_updated", map.cells_updated)?;
+    d.set_item("highlights", table(py, convert::highlights_to_rows(&map.highlights), 3)?)?;
+    let surfaces = PyList::empty(py);
+    for s in &map.surfaces {
+        let (kind, [sx0, sy0, sx1, sy1], support, ambiguous) = convert::surface_fields(s);
+        let row = PyDict::new(py);
+        row.set_item("kind", kind)?;
+        row.set_item("x0", sx0)?;
+        row.set_item("y0", sy0)?;
+        row.set_item("x1", sx1)?;
+        row.set_item("y1", sy1)?;
+        row.set_item("support", support)?;
+        row.set_item("ambiguous", ambiguous)?;
+        surfaces.append(row)?;
+    }
+    d.set_item("surfaces", surfaces)?;
+    d.set_item("mapping", serde_json::to_string(&map.params).map_err(|e| value_error(e.to_string()))?)?;
+    // Last: moves the grid's buffer into the array (rows = y).
+    let grid = Array2::from_shape_vec((spec.ny, spec.nx), map.grid.data).map_err(|e| value_error(e.to_string()))?;
+    d.set_item("grid", grid.into_pyarray(py))?;
+    Ok(())
+}
+
+/// Simulates a scene, maps and scores it (`chirpmap simulate`).
+#[pyfunction]
+#[pyo3(signature = (scene_kind, scene_payload, seed=None))]
+fn simulate<'py>(
+    py: Python<'py>,
+    scene_kind: &str,
+    scene_payload: &str,
+    seed: Option<u64>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let src = scene_source(scene_kind, scene_payload)?;
+    if seed.is_some_and(|s| s > i64::MAX as u64) {
+        return Err(value_error("seed: must be between 0 and 2^63 - 1 (scene.toml records it as a TOML integer)"));
+    }
+    let run = py
+        .detach(|| -> Result<_, String> {
+            let (mut scene, _, name) = convert::load_scene(src)?;
+            if let Some(s) = seed {
+                scene.seed = s;
+            }
+            chirpmap::simulate(&scene).map_err(|e| format!("{name}: {}", error_text(&e)))
+        })
+        .map_err(value_error)?;
+    let d = PyDict::new(py);
+    let (rows, cols) = convert::echoes_to_rows(&run.output.echoes);
+    d.set_item("echoes", table(py, rows, cols)?)?;
+    let scores = PyDict::new(py);
+    scores.set_item("score_obstacle", run.scores.score_obstacle)?;
+    scores.set_item("score_highlight", run.scores.score_highlight)?;
+    d.set_item("scores", scores)?;
+    d.set_item("scene", run.resolved.scene.to_toml_string())?;
+    d.set_item("seed", run.resolved.scene.seed)?;
+    d.set_item("n_measurements", run.output.measurements.len())?;
+    d.set_item("n_obstacles", run.resolved.obstacles.len())?;
+    d.set_item("simulate_elapsed_s", run.simulate_elapsed_s)?;
+    map_fields(py, &d, run.map)?;
+    Ok(d)
+}
+
+/// Maps echoes (`chirpmap map --echoes`).
+#[pyfunction]
+#[pyo3(signature = (echoes, sigma, bounds, cell, keep_top, min_of_max, peak_radius, ellipse_points, mapper, evidence_json))]
+#[allow(clippy::too_many_arguments)]
+fn map_echoes<'py>(
+    py: Python<'py>,
+    echoes: PyReadonlyArray2<'py, f64>,
+    sigma: Option<PyReadonlyArray1<'py, f64>>,
+    bounds: Option<[f64; 4]>,
+    cell: f64,
+    keep_top: f64,
+    min_of_max: f64,
+    peak_radius: f64,
+    ellipse_points: u32,
+    mapper: &str,
+    evidence_json: Option<&str>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let cols = echoes.as_array().ncols();
+    let data = echoes.as_slice().map_err(|_| value_error("echoes must be a C-contiguous array"))?;
+    let sigma = match &sigma {
+        Some(s) => Some(s.as_slice().map_err(|_| value_error("sigma must be a contiguous array"))?),
+        None => None,
+    };
+    let params =
+        convert::mapping_params(cell, keep_top, min_of_max, peak_radius, ellipse_points, mapper, evidence_json)
+            .map_err(value_error)?;
+    let map = py
+        .detach(|| -> Result<_, String> {
+            let echoes = convert::echoes_from_rows(data, cols, sigma)?;
+            let opts = MapOptions { params, bounds, ..MapOptions::default() };
+            chirpmap::map_echoes(&echoes, &[], &opts).map_err(|e| error_text(&e))
+        })
+        .map_err(value_error)?;
+    let d = PyDict::new(py);
+    map_fields(py, &d, map)?;
+    Ok(d)
+}
+
+/// Renders what the scene's listeners record (`chirpmap synth`): samples
+/// `(n_samples, n_listeners)` float32, the sample rate (Hz) and per
+/// listener an `(m, 3)` array of poses `t, x, y`.
+#[pyfunction]
+fn synth<'py>(
+    py: Python<'py>,
+    scene_kind: &str,
+    scene_payload: &str,
+) -> PyResult<(Bound<'py, PyAny>, u32, Bound<'py, PyList>)> {
+    let src = scene_source(scene_kind, scene_payload)?;
+    let (samples, rate, poses) = py
+        .detach(|| -> Result<_, String> {
+            let (scene, cfg, name) = convert::load_scene(src)?;
+            let syn = chirpmap::synth(&scene, &cfg).map_err(|e| format!("{name}: {}", error_text(&e)))?;
+            let n_listeners = syn.channels.len();
+            let n = syn.channels.first().map_or(0, Vec::len);
+            if syn.channels.iter().any(|c| c.len() != n) {
+                return Err(format!("{name}: the listeners' channels differ in length"));
+            }
+            let mut channels = syn.channels;
+            let samples = if n_listeners == 1 {
+                // One listener: the channel's buffer itself, as an (n, 1) array.
+                Array2::from_shape_vec((n, 1), channels.pop().unwrap_or_default())
+            } else {
+                // Several: one buffer (L, n), handed out transposed (a view).
+                let mut flat = Vec::with_capacity(n * n_listeners);
+                for c in channels {
+                    flat.extend(c);
+                }
+                Array2::from_shape_vec((n_listeners, n), flat).map(Array2::reversed_axes)
+            }
+            .map_err(|e| e.to_string())?;
+            let poses: Vec<Vec<f64>> =
+                syn.poses.iter().map(|p| p.iter().flat_map(|&(t, q)| [t, q.x, q.y]).collect()).collect();
+            Ok((samples, syn.sample_rate_hz, poses))
+        })
+        .map_err(value_error)?;
+    let pose_list = PyList::empty(py);
+    for p in poses {
+        pose_list.append(table(py, p, 3)?)?;
+    }
+    Ok((samples.into_pyarray(py).into_any(), rate, pose_list))
+}
+
+/// Ranges a recording (`chirpmap range`): the summary as JSON text, the
+/// keys of range's summary.json.
+#[pyfunction]
+#[pyo3(signature = (samples, sample_rate, speaker, mic, wall_normal, methods, primary, f_start, f_end, duration, speed_of_sound, max_delta_d))]
+#[allow(clippy::too_many_arguments)]
+fn range(
+    py: Python<'_>,
+    samples: PyReadonlyArray1<'_, f32>,
+    sample_rate: f64,
+    speaker: [f64; 2],
+    mic: [f64; 2],
+    wall_normal: Option<[f64; 2]>,
+    methods: Vec<String>,
+    primary: usize,
+    f_start: f64,
+    f_end: f64,
+    duration: f64,
+    speed_of_sound: f64,
+    max_delta_d: Option<f64>,
+) -> PyResult<String> {
+    let methods: Vec<Method> = methods
+        .iter()
+        .map(|m| m.parse())
+        .collect::<Result<_, String>>()
+        .map_err(|e| value_error(format!("method: {e}")))?;
+    if !(sample_rate.is_finite() && sample_rate > 0.0) {
+        return Err(value_error(format!("sample_rate: must be finite and > 0 Hz, got {sample_rate}")));
+    }
+    let geom = RangeGeometry {
+        speaker: Point::new(speaker[0], speaker[1]),
+        mic: Point::new(mic[0], mic[1]),
+        wall_normal: wall_normal.map(|[x, y]| Point::new(x, y)),
+    };
+    let chirp = ChirpSpec {
+        f_start_hz: f_start,
+        f_end_hz: f_end,
+        duration_s: duration,
+        speed_of_sound_mps: speed_of_sound,
+        max_delta_d_m: max_delta_d,
+    };
+    let x = samples.as_slice().map_err(|_| value_error("samples must be a contiguous array"))?;
+    py.detach(|| -> Result<String, String> {
+        geom.validate().map_err(|e| error_text(&e))?;
+        let prep = chirpmap::prepare(x.to_vec(), sample_rate, &chirp).map_err(|e| error_text(&e))?;
+        let report = chirpmap::range(&prep, &methods, &geom).map_err(|e| error_text(&e))?;
+        let summary = report.summary(&prep, &chirp, &geom, primary);
+        serde_json::to_string(&summary).map_err(|e| e.to_string())
+    })
+    .map_err(value_error)
+}
+
+/// The compiled part of `chirpmap`; use the functions of the `chirpmap`
+/// package, which document their arguments and results.
+#[pymodule]
+fn _chirpmap(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    m.add_function(wrap_pyfunction!(simulate, m)?)?;
+    m.add_function(wrap_pyfunction!(map_echoes, m)?)?;
+    m.add_function(wrap_pyfunction!(synth, m)?)?;
+    m.add_function(wrap_pyfunction!(range, m)?)?;
+    Ok(())
+}
