@@ -1,0 +1,168 @@
+"""The package's behaviour apart from the CLI: errors are ValueErrors with the
+CLI's messages (never a panic), results own Rust's buffers, and long work
+releases the GIL."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+import chirpmap
+
+GOOD = [0.0, 0.0, 1.0, 1.0, 2.0]
+
+
+@pytest.mark.parametrize(
+    "rows, message",
+    [
+        ([GOOD[:4] + [float("nan")]], "echoes[0]: `delta_d` = NaN is not finite"),
+        ([GOOD, GOOD[:4] + [-2.0]], "echoes[1]: delta_d must be >= 0"),
+        ([[1.0, 1.0, 1.0, 1.0, 2.0]], "echoes[0]: source and listener coincide"),
+        ([GOOD + [-1.0]], "echoes[0]: invalid mapping parameter weight"),
+        ([GOOD + [1.0, 0.0, 2.5]], "echoes[0]: `listener` = 2.5 must be a non-negative integer id"),
+        ([[1e300, 0.0, 1.0, 1.0, 2.0]], "echoes[0]: source (1e300, 0) is beyond"),
+        ([GOOD + [1.0, 0.0, 0.0, 0.0]], "`sigma_m` = 0 must be > 0"),
+        ([GOOD[:4]], "echoes must have 5 to 9 columns"),
+        (np.zeros((0, 5)), "no echoes to map"),
+    ],
+)
+def test_bad_echoes_raise_value_error(rows, message):
+    with pytest.raises(ValueError) as e:
+        chirpmap.map_echoes(np.array(rows, dtype=float))
+    assert message in str(e.value)
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"mapper": "best"}, '"best" is not a mapper (paper or evidence)'),
+        ({"cell": 0.0}, "cell"),
+        ({"keep_top": 1.5}, "keep_top"),
+        ({"bounds": (1, 0, 0, 1)}, "xmin < xmax"),
+        ({"bounds": (0, 0, 1)}, "bounds: expected (x_min, y_min, x_max, y_max)"),
+        ({"bounds": (-1e5, -1e5, 1e5, 1e5), "cell": 0.01}, "more than the cap of"),
+        ({"mapper": "evidence", "evidence": {"angle_bins": 2}}, "evidence.angle_bins"),
+        ({"mapper": "evidence", "evidence": {"no_such_key": 2}}, "no_such_key"),
+        ({"sigma": -1.0, "mapper": "evidence"}, "`sigma_m` = -1 must be > 0"),
+        ({"sigma": [0.1, 0.2, 0.3]}, "could not be broadcast"),
+    ],
+)
+def test_bad_parameters_raise_value_error(kwargs, message):
+    with pytest.raises(ValueError) as e:
+        chirpmap.map_echoes(np.array([GOOD, GOOD]), **kwargs)
+    assert message in str(e.value)
+
+
+def test_bad_scenes_raise_value_error(tmp_path):
+    with pytest.raises(ValueError, match=r"scene dict: .*sede"):
+        chirpmap.simulate({"sede": 3})
+    with pytest.raises(ValueError, match=r"^scene: .*radius"):
+        chirpmap.simulate("[[obstacles]]\ncenter = [0.0, -20.0]\nradius = -1.0\n")
+    with pytest.raises(ValueError, match=r"cannot read scene no/such/scene\.toml: "):
+        chirpmap.simulate("no/such/scene.toml")
+    bad = tmp_path / "bad.toml"
+    bad.write_text("seed = \n")
+    with pytest.raises(ValueError, match=f"^{bad}: "):
+        chirpmap.simulate(bad)
+    with pytest.raises(ValueError, match="seed: must be between 0 and 2"):
+        chirpmap.simulate(seed=-1)
+    with pytest.raises(ValueError, match="scene dict"):
+        chirpmap.simulate({"seed": float("nan")})
+    with pytest.raises(TypeError):
+        chirpmap.simulate(3.5)  # type: ignore[arg-type]
+
+
+def test_bad_recordings_raise_value_error():
+    fs = 48000.0
+    silent = np.zeros(48000, dtype=np.float32)
+    with pytest.raises(ValueError, match=r"the channel is silent"):
+        chirpmap.range(silent, fs, (0, 0), (1, 0))
+    noise = np.random.default_rng(1).standard_normal(48000).astype(np.float32)
+    with pytest.raises(ValueError, match=r"speaker and mic are the same point"):
+        chirpmap.range(noise, fs, (1, 0), (1, 0))
+    with pytest.raises(ValueError, match=r"duration: the chirp \(2 s\) is longer than the recording"):
+        chirpmap.range(noise, fs, (0, 0), (1, 0), duration=2.0)
+    with pytest.raises(ValueError, match=r"speed_of_sound: must be between"):
+        chirpmap.range(noise, fs, (0, 0), (1, 0), speed_of_sound=5.0)
+    with pytest.raises(ValueError, match=r"max_delta_d: .* longer than a·T"):
+        chirpmap.range(noise, fs, (0, 0), (1, 0), max_delta_d=1000.0)
+    with pytest.raises(ValueError, match=r"method: unknown method 'fft'"):
+        chirpmap.range(noise, fs, (0, 0), (1, 0), method="fft")
+    with pytest.raises(ValueError, match=r"sample_rate"):
+        chirpmap.range(noise, float("nan"), (0, 0), (1, 0))
+    with pytest.raises(ValueError, match=r"the wall normal must be finite and not zero"):
+        chirpmap.range(noise, fs, (0, 0), (1, 0), wall_normal=(0, 0))
+    with pytest.raises(ValueError, match=r"channel: 2 is not a channel of 2"):
+        chirpmap.range(np.zeros((10, 2)), fs, (0, 0), (1, 0), channel=2)
+
+
+def test_results_own_rust_buffers_without_copies():
+    run = chirpmap.simulate(seed=2)
+    for a in (run.grid, run.echoes, run.highlights):
+        # A numpy array wrapping Rust's Vec: it does not own its data, its
+        # base is the Rust container (not another ndarray a copy would make).
+        assert not a.flags.owndata and a.base is not None and not isinstance(a.base, np.ndarray)
+        assert a.flags.c_contiguous and a.dtype == np.float64
+    assert run.grid.shape == (1000, 1000)
+    x0, x1, y0, y1 = run.extent
+    assert (x0, y0, x1, y1) == run.bounds == (-50.0, -50.0, 50.0, 50.0)
+    # Highlights are the grid's cells: row = y, column = x.
+    for x, y, v in run.highlights:
+        i, j = int((x - x0) / run.cell), int((y - y0) / run.cell)
+        assert run.grid[j, i] == v
+
+
+def test_synth_shapes_several_listeners():
+    scene = {
+        "source": {"position": [0.0, 0.0]},
+        "listeners": [{"start": [1.0, 0.5], "speed": 0.0}, {"start": [-2.0, 0.5], "speed": 0.0}],
+        "synth": {"chirps": 2, "gap_s": 0.2, "bits": "f32"},
+    }
+    samples, rate, poses = chirpmap.synth(scene)
+    assert samples.shape[1] == 2 and samples.dtype == np.float32 and rate == 48000
+    assert [p.shape[1] for p in poses] == [3, 3]
+    assert not np.array_equal(samples[:, 0], samples[:, 1])
+    # Each channel ranges like a mono recording of it.
+    one = chirpmap.range(samples, rate, (0, 0), (-2.0, 0.5), channel=1)
+    assert one == chirpmap.range(np.ascontiguousarray(samples[:, 1]), rate, (0, 0), (-2.0, 0.5))
+
+
+def test_mapping_releases_the_gil():
+    """While one thread maps, the main thread runs Python. With the GIL held
+    for the whole call it could run at most one switch interval (5 ms) of
+    it; released, it runs throughout."""
+    rng = np.random.default_rng(7)
+    n = 20000
+    echoes = np.column_stack(
+        [np.zeros(n), np.zeros(n), rng.uniform(-5, 5, n), np.full(n, 10.0), rng.uniform(12, 30, n)]
+    )
+    started = time.perf_counter()
+    chirpmap.map_echoes(echoes, bounds=(-40, -40, 40, 40))
+    once = time.perf_counter() - started
+    assert once > 0.1, f"the call took only {once:.4f} s: too short to tell"
+    # Loop iterations per second of this machine's Python.
+    count, t0 = 0, time.perf_counter()
+    while time.perf_counter() - t0 < 0.05:
+        count += 1
+    rate = count / (time.perf_counter() - t0)
+
+    inside, done = threading.Event(), threading.Event()
+
+    def work():
+        inside.set()
+        chirpmap.map_echoes(echoes, bounds=(-40, -40, 40, 40))
+        done.set()
+
+    t = threading.Thread(target=work)
+    t.start()
+    inside.wait()
+    count, t0 = 0, time.perf_counter()
+    while not done.is_set():
+        time.perf_counter()  # the calibration loop's work
+        count += 1
+    t.join()
+    share = count / (rate * once)
+    assert share > 0.25, f"the main thread ran {share:.0%} of the call ({count} iterations, {once:.3f} s)"
