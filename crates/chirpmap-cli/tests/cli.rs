@@ -111,7 +111,9 @@ fn map_finds_each_of_three_circles_from_exact_echoes() {
     let names: Vec<String> =
         std::fs::read_dir(&out).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
     assert!(!names.iter().any(|n| n.starts_with(".chirpmap-partial")), "{names:?}");
-    assert_eq!(names.iter().filter(|n| !n.starts_with('.')).count(), 3, "{names:?}");
+    let mut visible: Vec<&String> = names.iter().filter(|n| !n.starts_with('.')).collect();
+    visible.sort();
+    assert_eq!(visible, ["highlights.csv", "map.npy", "map.pgm", "map.png", "map.yaml", "summary.json"], "{names:?}");
 }
 
 #[test]
@@ -182,6 +184,8 @@ fn summary_without_timings(dir: &Path) -> serde_json::Value {
     let obj = v.as_object_mut().unwrap();
     assert!(obj.remove("elapsed_s").unwrap().as_f64().unwrap() > 0.0);
     assert!(obj.remove("simulate_elapsed_s").unwrap().as_f64().unwrap() > 0.0);
+    // The command line names the output directory.
+    assert!(obj.remove("run").unwrap()["command_line"].is_array());
     v
 }
 
@@ -197,11 +201,24 @@ fn simulate_default_scene_is_reproducible_and_replayable() {
     let mut names: Vec<String> =
         std::fs::read_dir(&a).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
     names.sort();
-    assert_eq!(names, [".chirpmap-outputs", "echoes.csv", "highlights.csv", "map.png", "scene.toml", "summary.json"]);
+    assert_eq!(
+        names,
+        [
+            ".chirpmap-outputs",
+            "echoes.csv",
+            "highlights.csv",
+            "map.npy",
+            "map.pgm",
+            "map.png",
+            "map.yaml",
+            "scene.toml",
+            "summary.json"
+        ]
+    );
     // Same seed: the same summary, bit for bit (timings aside), and the same files.
     let sa = summary_without_timings(&a);
     assert_eq!(sa, summary_without_timings(&b));
-    for f in ["echoes.csv", "highlights.csv", "scene.toml"] {
+    for f in ["echoes.csv", "highlights.csv", "scene.toml", "map.npy", "map.pgm"] {
         assert_eq!(std::fs::read(a.join(f)).unwrap(), std::fs::read(b.join(f)).unwrap(), "{f}");
     }
     assert_eq!(sa["seed"], 1);
@@ -353,4 +370,43 @@ fn rerun_into_the_same_directory_drops_the_previous_runs_extra_files_only() {
     assert!(!out.join("spectrum.png").exists());
     assert!(out.join("summary.json").exists() && out.join("map.png").exists());
     assert_eq!(std::fs::read_to_string(out.join("notes.txt")).unwrap(), "mine", "a user's file was touched");
+}
+
+#[test]
+fn evidence_mapper_writes_surfaces_grid_data_and_metrics() {
+    let out = std::env::temp_dir().join(format!("chirpmap-cli-evidence-{}", std::process::id()));
+    std::fs::remove_dir_all(&out).ok();
+    let (echoes, scene) =
+        (repo().join("examples/three-circles/echoes.csv"), repo().join("examples/three-circles/scene.toml"));
+    let o = run(&[
+        "map",
+        "--echoes",
+        echoes.to_str().unwrap(),
+        "--scene",
+        scene.to_str().unwrap(),
+        "--mapper",
+        "evidence",
+        "--plot-format",
+        "svg",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let surfaces = std::fs::read_to_string(out.join("surfaces.csv")).unwrap();
+    assert!(surfaces.starts_with("kind,x0,y0,x1,y1,support,ambiguous\n"), "{surfaces}");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["mapper"], "evidence");
+    assert_eq!(summary["grid"]["values"], "log-odds of occupancy");
+    assert!(summary["surface_f1"].is_number() && summary["score_obstacle"].is_number(), "{summary}");
+    // map.npy: NumPy v1.0, float32, shape (ny, nx) as the summary says.
+    let npy = std::fs::read(out.join("map.npy")).unwrap();
+    assert_eq!(&npy[..6], b"\x93NUMPY");
+    let (nx, ny) = (summary["grid"]["nx"].as_u64().unwrap(), summary["grid"]["ny"].as_u64().unwrap());
+    let header = String::from_utf8_lossy(&npy[10..128.min(npy.len())]).into_owned();
+    assert!(header.contains(&format!("'shape': ({ny}, {nx})")) && header.contains("'<f4'"), "{header}");
+    let yaml = std::fs::read_to_string(out.join("map.yaml")).unwrap();
+    assert!(yaml.contains("image: map.pgm") && yaml.contains("resolution: 0.1"), "{yaml}");
+    assert!(std::fs::read_to_string(out.join("map.svg")).unwrap().contains("<svg"));
+    assert!(!out.join("map.png").exists());
 }
