@@ -24,6 +24,10 @@ use chirpmap_core::{Obstacle, Point, Scene, Shape};
 
 /// Most chirps one rendering plays (the paper plays 50).
 pub const MAX_CHIRPS: usize = 1_000_000;
+/// Longest gap, lead-in or tail (s): a day.
+pub const MAX_SPAN_S: f64 = 86_400.0;
+/// Shortest pose period (s): a microsecond, far below any tracker.
+pub const MIN_POSE_PERIOD_S: f64 = 1e-6;
 use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
 use serde::{Deserialize, Serialize};
@@ -88,8 +92,8 @@ impl SynthConfig {
             return bad("synth.chirps", format!("must be in 1..={MAX_CHIRPS}, got {}", self.chirps));
         }
         for (f, v) in [("synth.gap_s", self.gap_s), ("synth.start_s", self.start_s), ("synth.tail_s", self.tail_s)] {
-            if !(v.is_finite() && v >= 0.0) {
-                return bad(f, format!("must be finite and >= 0, got {}", Num(v)));
+            if !(v.is_finite() && (0.0..=MAX_SPAN_S).contains(&v)) {
+                return bad(f, format!("must be finite, >= 0 and at most {MAX_SPAN_S} s, got {}", Num(v)));
             }
         }
         if !(self.taper_s.is_finite() && self.taper_s >= 0.0) {
@@ -101,8 +105,11 @@ impl SynthConfig {
         if !(self.peak > 0.0 && self.peak <= 1.0) {
             return bad("synth.peak", format!("must be in (0, 1], got {}", Num(self.peak)));
         }
-        if !(self.pose_period_s > 0.0 && self.pose_period_s.is_finite()) {
-            return bad("synth.pose_period_s", format!("must be finite and > 0, got {}", Num(self.pose_period_s)));
+        if !(self.pose_period_s >= MIN_POSE_PERIOD_S && self.pose_period_s.is_finite()) {
+            return bad(
+                "synth.pose_period_s",
+                format!("must be finite and at least {} s, got {}", Num(MIN_POSE_PERIOD_S), Num(self.pose_period_s)),
+            );
         }
         if let Some(s) = self.snr_db
             && !s.is_finite()

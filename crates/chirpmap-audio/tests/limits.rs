@@ -38,9 +38,11 @@ fn synth_refuses_a_run_beyond_the_memory_cap() {
     let e = synthesize(&scene, &cfg).unwrap_err();
     let msg = e.to_string();
     assert!(matches!(e, AudioError::TooLarge { .. }) && msg.contains("50 listener(s)") && msg.contains("GB"), "{msg}");
-    // A tiny pose period is counted too.
-    let (scene, cfg) = parse_scene_with_synth("[synth]\nchirps = 1\npose_period_s = 1e-12\n").unwrap();
+    // Poses are counted too: 1500 s every µs is 1.5·10⁹ poses (36 GB).
+    let (scene, cfg) = parse_scene_with_synth("[synth]\nchirps = 1000\npose_period_s = 1e-6\n").unwrap();
     assert!(matches!(synthesize(&scene, &cfg), Err(AudioError::TooLarge { .. })));
+    let e = parse_scene_with_synth("[synth]\npose_period_s = 1e-12\n").unwrap_err().to_string();
+    assert!(e.contains("synth.pose_period_s") && e.contains("1e-12"), "{e}");
 }
 
 /// Item 11: what `simulate` refuses, `synth` refuses, by the same validation.
