@@ -95,6 +95,10 @@ def test_bad_recordings_raise_value_error():
         chirpmap.range(noise, float("nan"), (0, 0), (1, 0))
     with pytest.raises(ValueError, match=r"the wall normal must be finite and not zero"):
         chirpmap.range(noise, fs, (0, 0), (1, 0), wall_normal=(0, 0))
+    with pytest.raises(ValueError, match=r"speaker: nan must be finite and within"):
+        chirpmap.range(noise, fs, (float("nan"), 0), (1, 0))
+    with pytest.raises(ValueError, match=r"mic: expected \(x, y\), got 3 values"):
+        chirpmap.range(noise, fs, (0, 0), (1, 0, 0))
     with pytest.raises(ValueError, match=r"channel: 2 is not a channel of 2"):
         chirpmap.range(np.zeros((10, 2)), fs, (0, 0), (1, 0), channel=2)
 

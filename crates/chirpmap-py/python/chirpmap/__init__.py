@@ -383,8 +383,16 @@ def range(  # noqa: A001 - the name the issue and the CLI use
     return json.loads(text)
 
 
+#: Largest coordinate accepted (m), as the CLI's X,Y arguments.
+_MAX_COORD_M = 1e6
+
+
 def _point(name: str, p: Sequence[float]) -> List[float]:
+    """`(x, y)` checked as the CLI checks an `X,Y` argument."""
     v = [float(c) for c in p]
     if len(v) != 2:
         raise ValueError(f"{name}: expected (x, y), got {len(v)} values")
+    for c in v:
+        if not (np.isfinite(c) and abs(c) <= _MAX_COORD_M):
+            raise ValueError(f"{name}: {c} must be finite and within ±{_MAX_COORD_M} m")
     return v
