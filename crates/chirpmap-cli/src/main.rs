@@ -10,6 +10,7 @@ macro_rules! say {
 }
 
 mod args;
+mod cmd_bench;
 mod cmd_map;
 mod cmd_range;
 mod cmd_simulate;
@@ -56,6 +57,8 @@ enum Command {
     Merge(cmd_sweep::MergeArgs),
     /// Render what the scene's listeners record: chirp train, direct path and specular reflections, noise.
     Synth(cmd_synth::SynthArgs),
+    /// Benchmark suites: `maps` runs both mappers side by side on a fixed scene suite (EXPERIMENTS.md).
+    Benchmark(cmd_bench::BenchArgs),
     /// Range a recording: find every chirp, Δd to the first reflection, wall distance (paper §IV).
     Range(cmd_range::RangeArgs),
 }
@@ -69,6 +72,7 @@ fn main() -> ExitCode {
         Command::Merge(args) => cmd_sweep::run_merge_cmd(&args),
         Command::Synth(args) => cmd_synth::run(&args),
         Command::Range(args) => cmd_range::run(&args),
+        Command::Benchmark(args) => cmd_bench::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

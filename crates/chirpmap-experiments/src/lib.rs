@@ -8,6 +8,7 @@
 //! every configuration (the paper relies on this).
 
 pub mod driver;
+pub mod maps;
 pub mod pipeline;
 pub mod error;
 pub mod presets;
