@@ -222,3 +222,19 @@ fn run_counts_are_bounded_before_any_work() {
     let e = SweepDef::from_toml_str(&big).unwrap_err().to_string();
     assert!(e.len() < 300, "{} chars", e.len());
 }
+
+/// The repository's sweeps (definitions and recorded results) still plan
+/// under the shared scene validation, so they can be rerun and resumed.
+#[test]
+fn recorded_sweeps_still_plan() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../experiments");
+    let mut files = vec![root.join("cells-vs-points.toml")];
+    for d in ["cells-vs-points", "table1", "table2"] {
+        files.push(root.join(d).join("sweep.toml"));
+    }
+    for f in files {
+        let text = std::fs::read_to_string(&f).unwrap();
+        let def = SweepDef::from_toml_str(&text).unwrap();
+        def.plan(|_| Ok(())).unwrap_or_else(|e| panic!("{}: {e}", f.display()));
+    }
+}
