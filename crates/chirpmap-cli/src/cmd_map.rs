@@ -16,9 +16,10 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 #[derive(Debug, Args)]
+#[command(group = clap::ArgGroup::new("input").required(true).args(["echoes", "wav"]))]
 pub struct MapArgs {
-    /// Echoes CSV (header: source_x,source_y,listener_x,listener_y,delta_d[,weight,t,listener]).
-    #[arg(long, required_unless_present = "wav", conflicts_with = "wav")]
+    /// Echoes CSV (header: source_x,source_y,listener_x,listener_y,delta_d[,weight,t,listener,sigma_m]).
+    #[arg(long, conflicts_with = "wav")]
     pub echoes: Option<PathBuf>,
     /// Instead of --echoes: a recording of a moving listener (needs --poses and --speaker); the echoes
     /// it yields are written to DIR/echoes.csv.
@@ -42,7 +43,8 @@ pub struct MapArgs {
     pub frame_ms: Option<f64>,
     #[command(flatten)]
     pub chirp: ChirpArgs,
-    /// Output directory (created; highlights.csv, map.png, summary.json).
+    /// Output directory (created): highlights.csv, map.png (or .svg), map.npy, map.pgm + map.yaml,
+    /// summary.json; surfaces.csv with the evidence mapper; echoes.csv with --wav.
     #[arg(long)]
     pub out: PathBuf,
     /// Grid cell size (m) [default: 0.1, or the scene's [mapping] with --scene].

@@ -116,9 +116,10 @@ pub fn run_merge_cmd(args: &MergeArgs) -> Result<()> {
     let (outcome, report) = merge(&inputs, &args.out, plan)?;
     if !report.duplicated.is_empty() {
         eprintln!(
-            "warning: {} runs appear in more than one input (identical results, kept once), e.g. {:?}",
+            "warning: {} runs appear in more than one input (identical results, kept once), e.g. configuration {}, run {}",
             report.duplicated.len(),
-            report.duplicated[0]
+            report.duplicated[0].config,
+            report.duplicated[0].run
         );
     }
     if !report.missing.is_empty() {
