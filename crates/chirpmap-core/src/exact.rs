@@ -13,6 +13,10 @@
 //!   corner echoes of a room), each bounce point on its segment, every leg
 //!   unblocked.
 //!
+//! Poses whose direct path is blocked give no echoes: Δd is measured
+//! against the direct sound, and without it there is no measurement (and
+//! the mapper's free-space rule, which needs it, would not hold).
+//!
 //! Arrivals of equal length (within `merge_tol_m`) are one echo, as a
 //! receiver hears them (the two bounce orders in a right-angled corner give
 //! the same path).
@@ -169,6 +173,11 @@ pub fn exact_reflections(
             return Err(CoreError::NotFinite { field: "t", value: pose.t_s });
         }
         let direct = source.dist(l);
+        // Δd is measured against the direct sound: where a reflector blocks
+        // it there is no reference, and no measurement.
+        if blocked(source, l, scene, &[]) {
+            continue;
+        }
         let mut found: Vec<ExactReflection> = Vec::new();
         for (i, w) in scene.walls.iter().enumerate() {
             let (ss, sl) = (side(source, w), side(l, w));
@@ -288,6 +297,14 @@ mod tests {
         let r = exact_reflections(Point::new(0.0, 0.0), &poses, &blocked, &ExactOptions::default()).expect("ok");
         assert_eq!(r.len(), 1, "only the near wall: {r:?}");
         assert!((r[0].delta_d_m - (20f64.sqrt() - 4.0)).abs() < 1e-12);
+        // A circle on the direct path: no reference, no echoes at all.
+        let c = Circle::new(Point::new(2.0, 0.0), 0.5).expect("valid");
+        let shadowed = ExactScene { walls: vec![wall(-10.0, 3.0, 10.0, 3.0)], circles: vec![c] };
+        assert!(
+            exact_reflections(Point::new(0.0, 0.0), &poses, &shadowed, &ExactOptions::default())
+                .expect("ok")
+                .is_empty()
+        );
     }
 
     #[test]

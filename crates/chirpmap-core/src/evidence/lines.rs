@@ -12,6 +12,9 @@ use std::f64::consts::TAU;
 pub(crate) struct LineOut {
     pub surface: Surface,
     pub touches: Vec<(usize, Point)>,
+    /// Normal angle (rad) and offset from the grid centre (m).
+    pub theta: f64,
+    pub rho: f64,
 }
 
 #[derive(Debug, Clone, Default)]
@@ -32,6 +35,8 @@ struct Cand {
     touches: Vec<(usize, Point)>,
     p0: Point,
     p1: Point,
+    /// Root-mean-square tangency residual of the touches, in σ.
+    rms_sigmas: f64,
 }
 
 impl Cand {
@@ -65,15 +70,27 @@ fn median(v: &mut [f64]) -> f64 {
     *m
 }
 
-/// Robust fit quality of the line at angle `theta` for `set`: truncated
-/// squared residuals (in σ) about the median offset.
-fn objective(ctx: &Ctx, set: &[usize], theta: f64, origin: Point, buf: &mut Vec<f64>) -> f64 {
+/// Densest offset at angle `theta` for `set`: the window of width 2τ
+/// (τ = kσ, σ the set's median) holding the most tangent offsets, and its
+/// mean. Returns `(count, mean)`.
+fn densest(ctx: &Ctx, set: &[usize], theta: f64, origin: Point, buf: &mut Vec<f64>) -> (usize, f64) {
     buf.clear();
     buf.extend(set.iter().map(|&k| rho_of(ctx, k, theta, origin)));
-    let mut sorted = buf.clone();
-    let med = median(&mut sorted);
-    let cap = ctx.params.band_sigmas * ctx.params.band_sigmas;
-    set.iter().zip(buf.iter()).map(|(&k, r)| (((r - med) / ctx.preps[k].sigma_m).powi(2)).min(cap)).sum()
+    buf.sort_by(f64::total_cmp);
+    let mut sig: Vec<f64> = set.iter().map(|&k| ctx.preps[k].sigma_m).collect();
+    let width = 2.0 * ctx.params.band_sigmas * median(&mut sig);
+    let (mut best, mut best_lo, mut lo) = (0usize, 0usize, 0usize);
+    for hi in 0..buf.len() {
+        while buf[hi] - buf[lo] > width {
+            lo += 1;
+        }
+        if hi + 1 - lo > best {
+            best = hi + 1 - lo;
+            best_lo = lo;
+        }
+    }
+    let mean = buf[best_lo..best_lo + best].iter().sum::<f64>() / best.max(1) as f64;
+    (best, mean)
 }
 
 /// Golden-section minimum of `f` on `[lo, hi]`.
@@ -156,38 +173,176 @@ fn segment_of(theta: f64, rho: f64, origin: Point, touches: &[(usize, Point)]) -
     (foot + d * lo, foot + d * hi)
 }
 
-/// Refines a Hough peak by robust least squares over the angle (golden
-/// section) with the offset the mean of the inliers' tangent offsets.
+/// Weighted variance of the tangent offsets of `set` at `theta`, and their mean.
+fn spread(ctx: &Ctx, set: &[usize], theta: f64, origin: Point) -> (f64, f64) {
+    let (mut sw, mut swr, mut swr2) = (0.0, 0.0, 0.0);
+    for &k in set {
+        let r = rho_of(ctx, k, theta, origin);
+        let w = 1.0 / (ctx.preps[k].sigma_m * ctx.preps[k].sigma_m);
+        sw += w;
+        swr += w * r;
+        swr2 += w * r * r;
+    }
+    let mean = swr / sw;
+    ((swr2 / sw - mean * mean).max(0.0), mean)
+}
+
+/// Refines a Hough peak: first the angle within the bin where the most
+/// tangent offsets fall in one band (a scan, since away from the true angle
+/// a long wall's offsets fan out by length × angle error), then weighted
+/// least squares (golden section on the offsets' variance, offset = their
+/// mean), re-gathering the echoes within their band each round.
 fn refine(ctx: &Ctx, theta0: f64, rho0: f64, origin: Point, bin: f64, rho_bin: f64) -> Option<Cand> {
-    let mut set = gather(ctx, theta0, rho0, origin, rho_bin);
-    let (mut theta, mut rho) = (theta0, rho0);
-    let mut span = bin;
     let mut buf = Vec::new();
+    const STEPS: usize = 80;
+    let (mut theta, mut rho) = (theta0, rho0);
+    let mut step = bin;
+    // Scan ±2 bins for the angle where the tangent offsets agree best
+    // (Gaussian kernel score about the densest offset); recentre while the
+    // best angle sits on the scan's edge (short walls vote over a plateau
+    // several bins wide, so the peak bin can be off).
+    for _ in 0..3 {
+        let set0 = gather(ctx, theta, rho, origin, 2.0 * rho_bin);
+        if set0.len() < 2 {
+            return None;
+        }
+        let lo = theta - 2.0 * bin;
+        step = 4.0 * bin / STEPS as f64;
+        let mut best = (f64::NEG_INFINITY, 0usize, rho);
+        for s in 0..=STEPS {
+            let th = lo + step * s as f64;
+            let (_, centre) = densest(ctx, &set0, th, origin, &mut buf);
+            let score: f64 = set0
+                .iter()
+                .map(|&k| {
+                    let x = (rho_of(ctx, k, th, origin) - centre) / ctx.preps[k].sigma_m;
+                    (-0.5 * x * x).exp()
+                })
+                .sum();
+            if score > best.0 {
+                best = (score, s, centre);
+            }
+        }
+        theta = lo + step * best.1 as f64;
+        rho = best.2;
+        if best.1 != 0 && best.1 != STEPS {
+            break;
+        }
+    }
+    let mut span = 2.0 * step;
+    let mut set = Vec::new();
     for _ in 0..4 {
+        set = gather(ctx, theta, rho, origin, 0.0);
         if set.len() < 2 {
             return None;
         }
-        theta = golden(theta - span, theta + span, |th| objective(ctx, &set, th, origin, &mut buf));
-        let rs: Vec<f64> = set.iter().map(|&k| rho_of(ctx, k, theta, origin)).collect();
-        let med = median(&mut rs.clone());
-        let (mut sum, mut cnt) = (0.0, 0usize);
-        for (&k, r) in set.iter().zip(&rs) {
-            if (r - med).abs() <= tau(ctx, k) {
-                sum += r;
-                cnt += 1;
-            }
-        }
-        if cnt == 0 {
-            return None;
-        }
-        rho = sum / cnt as f64;
-        set = gather(ctx, theta, rho, origin, 0.0);
-        span *= 0.3;
+        theta = golden(theta - span, theta + span, |th| spread(ctx, &set, th, origin).0);
+        rho = spread(ctx, &set, theta, origin).1;
+        span *= 0.5;
     }
+    let _ = &set;
+    let set = gather(ctx, theta, rho, origin, 0.0);
     let theta = theta.rem_euclid(TAU);
     let touches = touches_in_runs(ctx, &set, theta, rho, origin);
     let (p0, p1) = segment_of(theta, rho, origin, &touches);
-    Some(Cand { theta, rho, touches, p0, p1 })
+    let ks: Vec<usize> = touches.iter().map(|&(k, _)| k).collect();
+    let rms_sigmas = if ks.is_empty() {
+        f64::INFINITY
+    } else {
+        let sum: f64 = ks.iter().map(|&k| ((rho_of(ctx, k, theta, origin) - rho) / ctx.preps[k].sigma_m).powi(2)).sum();
+        (sum / ks.len() as f64).sqrt()
+    };
+    Some(Cand { theta, rho, touches, p0, p1, rms_sigmas })
+}
+
+/// Whether the tangent offsets bend along the line: the sagitta of a
+/// parabola fitted to residual vs position exceeds half a band (kσ/2). A
+/// large circle seen over a small arc passes for a line in the vote, but its
+/// residuals curve by the arc's sagitta.
+fn curved(ctx: &Ctx, c: &Cand, origin: Point) -> bool {
+    let n = c.normal();
+    let d = Point::new(-n.y, n.x);
+    let pts: Vec<(f64, f64)> =
+        c.touches.iter().map(|&(k, p)| (d.dot(p - origin), rho_of(ctx, k, c.theta, origin) - c.rho)).collect();
+    if pts.len() < 4 {
+        return false;
+    }
+    let m = pts.iter().map(|p| p.0).sum::<f64>() / pts.len() as f64;
+    let half = pts.iter().map(|p| (p.0 - m).abs()).fold(0.0, f64::max);
+    if half <= 0.0 {
+        return false;
+    }
+    // Least squares r = a + b x + q x² with x = (t − m)/half in [−1, 1].
+    let mut s = [[0.0f64; 3]; 3];
+    let mut y = [0.0f64; 3];
+    for &(t, r) in &pts {
+        let x = (t - m) / half;
+        let basis = [1.0, x, x * x];
+        for i in 0..3 {
+            for j in 0..3 {
+                s[i][j] += basis[i] * basis[j];
+            }
+            y[i] += basis[i] * r;
+        }
+    }
+    let Some(sol) = solve3(s, y) else { return false };
+    let mut sig: Vec<f64> = c.touches.iter().map(|&(k, _)| ctx.preps[k].sigma_m).collect();
+    sol[2].abs() > 0.5 * ctx.params.band_sigmas * median(&mut sig)
+}
+
+/// Solves a 3 × 3 linear system by Cramer's rule; `None` when singular.
+fn solve3(a: [[f64; 3]; 3], y: [f64; 3]) -> Option<[f64; 3]> {
+    let det = |m: [[f64; 3]; 3]| {
+        m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+            + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
+    };
+    let d = det(a);
+    if d.abs() < 1e-12 {
+        return None;
+    }
+    let mut out = [0.0; 3];
+    for (c, o) in out.iter_mut().enumerate() {
+        let mut m = a;
+        for r in 0..3 {
+            m[r][c] = y[r];
+        }
+        *o = det(m) / d;
+    }
+    Some(out)
+}
+
+/// Of the measurements that would hear a wall on this segment (their
+/// image-source reflection point lies on it, both foci on the free side),
+/// the fraction that did hear an echo at the predicted Δd within kσ. A real
+/// wall is heard from wherever it can be; a line that only a short run of
+/// poses happens to be tangent to is not (negative evidence, as in
+/// occupancy mapping).
+fn heard_ratio(ctx: &Ctx, c: &Cand, origin: Point) -> f64 {
+    let n = c.normal();
+    let d = Point::new(-n.y, n.x);
+    let (t0, t1) = (d.dot(c.p0 - origin), d.dot(c.p1 - origin));
+    let (t_lo, t_hi) = (t0.min(t1), t0.max(t1));
+    let (mut predicted, mut heard) = (0usize, 0usize);
+    for m in &ctx.meas {
+        let (s, l) = (m.source, m.listener);
+        let (hs, hl) = (c.rho - n.dot(s - origin), c.rho - n.dot(l - origin));
+        if hs <= 0.0 || hl <= 0.0 {
+            continue;
+        }
+        let image = s + n * (2.0 * hs);
+        // Reflection point: where L → image crosses the line.
+        let q = l + (image - l) * (hl / (hl + hs));
+        let tq = d.dot(q - origin);
+        if tq < t_lo || tq > t_hi {
+            continue;
+        }
+        predicted += 1;
+        let dd = image.dist(l) - s.dist(l);
+        if m.echoes.iter().any(|&k| (ctx.preps[k].ellipse.delta_d_m - dd).abs() <= tau(ctx, k)) {
+            heard += 1;
+        }
+    }
+    if predicted == 0 { 0.0 } else { heard as f64 / predicted as f64 }
 }
 
 /// Whether segments `a`–`b` and `c`–`d` cross, `a`–`b` excluding a small
@@ -206,8 +361,8 @@ fn crosses(a: Point, b: Point, c: Point, d: Point) -> bool {
 }
 
 /// Fraction of `c`'s tangency points hidden from the source or the listener
-/// behind one of `occluders` (each extended by 1 m plus a quarter of its
-/// length, since the ends of a wall are rarely observed).
+/// behind one of `occluders` (each extended at both ends by its length up to
+/// 1 m plus a quarter of it, since the ends of a wall are rarely observed).
 fn occluded_fraction(ctx: &Ctx, c: &Cand, occluders: &[&Cand]) -> f64 {
     if c.touches.is_empty() || occluders.is_empty() {
         return 0.0;
@@ -217,7 +372,7 @@ fn occluded_fraction(ctx: &Ctx, c: &Cand, occluders: &[&Cand]) -> f64 {
         .map(|o| {
             let len = o.length();
             let dir = if len > 0.0 { (o.p1 - o.p0) * (1.0 / len) } else { Point::new(-o.normal().y, o.normal().x) };
-            let grow = 1.0 + 0.25 * len;
+            let grow = len.min(1.0) + 0.25 * len;
             (o.p0 - dir * grow, o.p1 + dir * grow)
         })
         .collect();
@@ -240,9 +395,56 @@ fn free_fraction(ctx: &Ctx, c: &Cand) -> f64 {
     free as f64 / (n + 1) as f64
 }
 
+/// Whether `o` explains at least half of `c`'s echoes: another fit of the
+/// same echoes (its mirror twin, say) cannot hide them.
+fn explains_same(c: &Cand, o: &Cand) -> bool {
+    let shared = c.touches.iter().filter(|(k, _)| o.touches.iter().any(|(j, _)| j == k)).count();
+    2 * shared >= c.support()
+}
+
 fn angle_diff(a: f64, b: f64) -> f64 {
     let d = (a - b).rem_euclid(TAU);
     d.min(TAU - d)
+}
+
+/// The mirror twin of the accepted line `a`: the other wall that gives the
+/// same echoes. With one fixed focus F (all sources, or all listeners, in
+/// one place) and the moving foci on a straight line, the path of an echo
+/// off a wall is |F′ − L| with F′ the image of F; reflecting F′ across the
+/// moving foci's line gives an image F″ with the same distances, whose wall
+/// is the perpendicular bisector of F and F″. With no fixed focus (a
+/// co-moving source and listener on one line), the twin is the wall
+/// reflected across the foci's line. Returns `(theta, rho)`.
+fn mirror_twin(ctx: &Ctx, a: &LineOut, origin: Point) -> Option<(f64, f64)> {
+    let ks: Vec<usize> = a.touches.iter().map(|&(k, _)| k).collect();
+    let tol = ctx.params.collinear_tol_m;
+    let srcs: Vec<Point> = ks.iter().map(|&k| ctx.preps[k].ellipse.focus_a).collect();
+    let lsts: Vec<Point> = ks.iter().map(|&k| ctx.preps[k].ellipse.focus_b).collect();
+    let fixed = |ps: &[Point]| ps.iter().all(|p| p.dist(ps[0]) <= tol);
+    let reflect = |p: Point, (c, d): (Point, Point)| {
+        let v = p - c;
+        c + d * (2.0 * v.dot(d)) - v
+    };
+    let n = Point::from_angle(a.theta);
+    let (f, moving) = if !srcs.is_empty() && fixed(&srcs) {
+        (srcs[0], lsts)
+    } else if !lsts.is_empty() && fixed(&lsts) {
+        (lsts[0], srcs)
+    } else {
+        let axis = ctx.foci_line(&ks)?;
+        let q = reflect(origin + n * a.rho, axis);
+        let n2 = reflect(origin + n, axis) - reflect(origin, axis);
+        return Some((n2.y.atan2(n2.x).rem_euclid(TAU), n2.dot(q - origin)));
+    };
+    let axis = super::principal_axis(&moving)?;
+    let image = f + n * (2.0 * (a.rho - n.dot(f - origin)));
+    let image2 = reflect(image, axis);
+    let d = image2 - f;
+    if d.norm() == 0.0 {
+        return None;
+    }
+    let n2 = d.normalized();
+    Some((n2.y.atan2(n2.x).rem_euclid(TAU), n2.dot((f + image2) * 0.5 - origin)))
 }
 
 /// The Hough vote, candidate refinement, ghost rejection and assignment.
@@ -259,12 +461,16 @@ pub(crate) fn find_lines(ctx: &Ctx) -> LinesResult {
     let k_bins = p.angle_bins as usize;
     let bin = TAU / k_bins as f64;
     let trig: Vec<(f64, f64)> = (0..k_bins).map(|t| (t as f64 * bin).sin_cos()).map(|(s, c)| (c, s)).collect();
-    let mut acc = vec![0u32; k_bins * n_rho];
+    // Triangular votes (1 at the tangent offset, 0 at the band's edge plus a
+    // bin) so that the angle where the offsets agree best is a strict peak
+    // rather than one end of a plateau of equal counts.
+    let mut acc = vec![0f32; k_bins * n_rho];
     for (k, prep) in ctx.preps.iter().enumerate() {
         let e = &prep.ellipse;
         let (a2, b2) = (e.semi_major_m * e.semi_major_m, e.semi_minor_m * e.semi_minor_m);
         let c = e.center - origin;
         let half = tau(ctx, k) + rho_bin;
+        let inv_half = 1.0 / half;
         for (t, &(nx, ny)) in trig.iter().enumerate() {
             let nu = nx * e.cos_t + ny * e.sin_t;
             let nv = -nx * e.sin_t + ny * e.cos_t;
@@ -275,15 +481,16 @@ pub(crate) fn find_lines(ctx: &Ctx) -> LinesResult {
                 continue;
             }
             let row = &mut acc[t * n_rho..(t + 1) * n_rho];
-            for v in &mut row[lo as usize..=hi as usize] {
-                *v += 1;
+            for b in lo as usize..=hi as usize {
+                let d = (b as f64 * rho_bin - r_max - rho).abs();
+                row[b] += (1.0 - d * inv_half).max(0.0) as f32;
             }
         }
     }
-    // Peaks: ≥ min_support and maximal among the 8 neighbours (θ wraps);
-    // equal neighbours earlier in scan order win.
-    let mut peaks: Vec<(u32, usize, usize)> = Vec::new();
-    let min_votes = p.min_support;
+    // Peaks: votes ≥ min_support / 2 and maximal among the 8 neighbours
+    // (θ wraps); equal neighbours earlier in scan order win.
+    let mut peaks: Vec<(f32, usize, usize)> = Vec::new();
+    let min_votes = 0.5 * p.min_support as f32;
     for t in 0..k_bins {
         for b in 0..n_rho {
             let v = acc[t * n_rho + b];
@@ -310,7 +517,7 @@ pub(crate) fn find_lines(ctx: &Ctx) -> LinesResult {
             }
         }
     }
-    peaks.sort_by(|a, b| b.0.cmp(&a.0).then(a.1.cmp(&b.1)).then(a.2.cmp(&b.2)));
+    peaks.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)).then(a.2.cmp(&b.2)));
     peaks.truncate(4 * p.max_surfaces as usize);
 
     // Refine, keep lines, drop duplicates (same orientation, shared echoes).
@@ -318,8 +525,11 @@ pub(crate) fn find_lines(ctx: &Ctx) -> LinesResult {
         .iter()
         .filter_map(|&(_, t, b)| refine(ctx, t as f64 * bin, b as f64 * rho_bin - r_max, origin, bin, rho_bin))
         .filter(|c| c.support() >= p.min_support as usize && c.length() >= p.min_line_length_m)
+        .filter(|c| !curved(ctx, c, origin) && heard_ratio(ctx, c, origin) >= 1.0 - p.ghost_fraction)
         .collect();
-    cands.sort_by(|a, b| b.support().cmp(&a.support()).then(a.theta.total_cmp(&b.theta)));
+    cands.sort_by(|a, b| {
+        b.support().cmp(&a.support()).then(a.rms_sigmas.total_cmp(&b.rms_sigmas)).then(a.theta.total_cmp(&b.theta))
+    });
     let mut uniq: Vec<Cand> = Vec::new();
     for c in cands {
         let dup = uniq.iter().any(|u| {
@@ -346,7 +556,7 @@ pub(crate) fn find_lines(ctx: &Ctx) -> LinesResult {
                 let occ: Vec<&Cand> = uniq
                     .iter()
                     .enumerate()
-                    .filter(|&(j, o)| j != i && !ghost[j] && 2 * o.support() >= c.support())
+                    .filter(|&(j, o)| j != i && !ghost[j] && 2 * o.support() >= c.support() && !explains_same(c, o))
                     .map(|(_, o)| o)
                     .collect();
                 occluded_fraction(ctx, c, &occ) > p.ghost_fraction
@@ -368,14 +578,22 @@ pub(crate) fn find_lines(ctx: &Ctx) -> LinesResult {
     // echoes an accepted ambiguous line already explains is its mirror twin,
     // reported too (ambiguous).
     let mut owner: Vec<Option<usize>> = vec![None; ctx.preps.len()];
+    let twin_tol = p.band_sigmas * p.default_sigma_m;
+    // One mirror twin per ambiguous line: the best-fitting candidate near it.
+    let mut has_twin: Vec<bool> = Vec::new();
     for (c, _) in uniq.iter().zip(&ghost).filter(|(_, g)| !**g) {
         if out.accepted.len() >= p.max_surfaces as usize {
             break;
         }
         let owners: Vec<Option<usize>> = c.touches.iter().map(|&(k, _)| owner[k]).collect();
         let twin = owners.first().copied().flatten().filter(|&o| {
-            out.accepted[o].surface.ambiguous
+            let a = &out.accepted[o];
+            !has_twin[o]
+                && a.surface.ambiguous
                 && 5 * owners.iter().filter(|x| **x == Some(o)).count() >= 4 * owners.len()
+                && mirror_twin(ctx, a, origin).is_some_and(|(th, rho)| {
+                    angle_diff(th, c.theta) <= 2.0 * bin && (rho - c.rho).abs() <= 2.0 * twin_tol + rho_bin
+                })
         });
         let touches: Vec<(usize, Point)> = if twin.is_some() {
             c.touches.clone()
@@ -397,14 +615,20 @@ pub(crate) fn find_lines(ctx: &Ctx) -> LinesResult {
         let ks: Vec<usize> = touches.iter().map(|&(k, _)| k).collect();
         let ambiguous = ctx.collinear(&ks);
         let idx = out.accepted.len();
-        if twin.is_none() {
-            for &k in &ks {
-                owner[k] = Some(idx);
+        match twin {
+            None => {
+                for &k in &ks {
+                    owner[k] = Some(idx);
+                }
             }
+            Some(o) => has_twin[o] = true,
         }
+        has_twin.push(twin.is_some());
         out.accepted.push(LineOut {
             surface: Surface { kind: SurfaceKind::Line, p0, p1, support: touches.len(), ambiguous },
             touches,
+            theta: c.theta,
+            rho: c.rho,
         });
     }
     out

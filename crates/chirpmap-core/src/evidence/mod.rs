@@ -279,6 +279,36 @@ impl Ctx<'_> {
         };
         max_line_deviation(&pts) <= tol
     }
+
+    /// The line through the foci of `echoes` (centroid, unit direction):
+    /// the mirror line of an ambiguous surface. Both sources and listeners
+    /// count; with all foci in one point there is none.
+    pub fn foci_line(&self, echoes: &[usize]) -> Option<(Point, Point)> {
+        let pts: Vec<Point> =
+            echoes.iter().flat_map(|&k| [self.preps[k].ellipse.focus_a, self.preps[k].ellipse.focus_b]).collect();
+        principal_axis(&pts)
+    }
+}
+
+/// Centroid and unit direction of the principal axis of `pts`.
+pub(crate) fn principal_axis(pts: &[Point]) -> Option<(Point, Point)> {
+    if pts.len() < 2 {
+        return None;
+    }
+    let n = pts.len() as f64;
+    let c = pts.iter().fold(Point::new(0.0, 0.0), |a, &p| a + p) * (1.0 / n);
+    let (mut sxx, mut sxy, mut syy) = (0.0, 0.0, 0.0);
+    for p in pts {
+        let d = *p - c;
+        sxx += d.x * d.x;
+        sxy += d.x * d.y;
+        syy += d.y * d.y;
+    }
+    if sxx + syy <= 0.0 {
+        return None;
+    }
+    let angle = 0.5 * (2.0 * sxy).atan2(sxx - syy);
+    Some((c, Point::from_angle(angle)))
 }
 
 /// Largest distance (m) of `pts` from their principal-axis line.

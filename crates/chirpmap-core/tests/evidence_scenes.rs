@@ -1,0 +1,219 @@
+//! Issue 9 targets on exact echoes (crate::exact), side by side with the
+//! paper's Algorithm 1. Run with `--nocapture` to see both mappers' numbers.
+
+use chirpmap_core::exact::{ExactOptions, ExactScene, Pose, exact_echoes, exact_reflections};
+use chirpmap_core::metrics::{MetricParams, sample_surfaces, surface_metrics, truth_distance};
+use chirpmap_core::{
+    AccumulationMapper, Circle, Echo, EvidenceParams, GridSpec, Mapper, MappingParams, Obstacle, Point, Polygon, Shape,
+    SurfaceKind, map_evidence,
+};
+
+fn circle(x: f64, y: f64, r: f64) -> Obstacle {
+    Obstacle {
+        shape: Shape::Circle(Circle::new(Point::new(x, y), r).expect("valid circle")),
+        roughness: 0.0,
+        absorption: 0.0,
+    }
+}
+
+fn polygon(v: &[(f64, f64)]) -> Obstacle {
+    let pts = v.iter().map(|&(x, y)| Point::new(x, y)).collect();
+    Obstacle { shape: Shape::Polygon(Polygon::new(pts).expect("valid polygon")), roughness: 0.0, absorption: 0.0 }
+}
+
+/// Poses on an ellipse-shaped closed loop.
+fn loop_poses(centre: Point, rx: f64, ry: f64, n: usize) -> Vec<Pose> {
+    (0..n)
+        .map(|k| {
+            let u = k as f64 * std::f64::consts::TAU / n as f64;
+            Pose { t_s: k as f64, listener: Point::new(centre.x + rx * u.cos(), centre.y + ry * u.sin()) }
+        })
+        .collect()
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    if v.is_empty() { f64::NAN } else { v[v.len() / 2] }
+}
+
+fn paper_highlights(echoes: &[Echo], spec: GridSpec) -> Vec<Point> {
+    let mut m = AccumulationMapper::new(spec, MappingParams::default()).expect("valid mapper");
+    for e in echoes {
+        m.add_echo(e).expect("valid echo");
+    }
+    m.highlights().iter().map(|h| h.pos).collect()
+}
+
+#[test]
+fn loop_past_three_circles() {
+    // The circles of examples/three-circles; the listener walks a closed loop
+    // between them and the source.
+    let truth = [circle(-10.0, -20.0, 3.0), circle(6.0, -26.0, 4.0), circle(14.0, -14.0, 2.5)];
+    let scene = ExactScene::from_obstacles(&truth);
+    let source = Point::new(0.0, 0.0);
+    let poses = loop_poses(Point::new(2.0, -12.0), 7.0, 4.0, 160);
+    let echoes = exact_echoes(source, &poses, &scene, &ExactOptions::default()).expect("exact echoes");
+    let spec = GridSpec::from_bounds([-25.0, -40.0, 30.0, 10.0], 0.1, u128::MAX).expect("grid");
+    let t0 = std::time::Instant::now();
+    let map = map_evidence(&echoes, spec, &EvidenceParams::default()).expect("evidence map");
+    let t_evidence = t0.elapsed();
+    let t0 = std::time::Instant::now();
+    let paper = paper_highlights(&echoes, spec);
+    let t_paper = t0.elapsed();
+
+    let per_obstacle: Vec<f64> = truth
+        .iter()
+        .map(|o| {
+            sample_surfaces(&map.surfaces, 0.05).iter().map(|&p| o.surface_distance(p)).fold(f64::INFINITY, f64::min)
+        })
+        .collect();
+    let paper_per_obstacle: Vec<f64> =
+        truth.iter().map(|o| paper.iter().map(|&p| o.surface_distance(p)).fold(f64::INFINITY, f64::min)).collect();
+    let hl: Vec<f64> = map.highlights.iter().map(|h| truth_distance(&truth, h.pos)).collect();
+    let paper_hl: Vec<f64> = paper.iter().map(|&p| truth_distance(&truth, p)).collect();
+    let m = surface_metrics(&map.surfaces, &truth, None, &MetricParams::default());
+    println!("loop past three circles: {} echoes", echoes.len());
+    println!(
+        "  evidence: {} surfaces, obstacle distances {per_obstacle:.3?}, {} highlights, median {:.3} m, max {:.3} m, precision {:.3}, time {t_evidence:?}",
+        map.surfaces.len(),
+        hl.len(),
+        median(hl.clone()),
+        hl.iter().copied().fold(0.0, f64::max),
+        m.precision
+    );
+    println!(
+        "  paper:    obstacle distances {paper_per_obstacle:.3?}, {} highlights, median {:.3} m, max {:.3} m, time {t_paper:?}",
+        paper_hl.len(),
+        median(paper_hl.clone()),
+        paper_hl.iter().copied().fold(0.0, f64::max)
+    );
+    for s in &map.surfaces {
+        println!(
+            "    {:?} ({:.2}, {:.2})-({:.2}, {:.2}) support {} ambiguous {}",
+            s.kind, s.p0.x, s.p0.y, s.p1.x, s.p1.y, s.support, s.ambiguous
+        );
+    }
+    assert!(per_obstacle.iter().all(|&d| d <= 0.15), "{per_obstacle:?}");
+    assert!(!hl.is_empty() && median(hl) <= 0.15);
+    assert!(map.surfaces.iter().all(|s| !s.ambiguous), "a closed loop is not mirror-ambiguous");
+}
+
+#[test]
+fn room_with_pillar_and_corner_echoes() {
+    let (w, h) = (8.0, 6.0);
+    let room = polygon(&[(0.0, 0.0), (w, 0.0), (w, h), (0.0, h)]);
+    let pillar = circle(5.5, 3.8, 0.3);
+    let truth = [room, pillar];
+    let scene = ExactScene::from_obstacles(&truth);
+    let source = Point::new(2.0, 2.5);
+    let poses = loop_poses(Point::new(4.0, 3.0), 2.6, 1.8, 160);
+    let opts = ExactOptions { second_order: true, ..ExactOptions::default() };
+    let refl = exact_reflections(source, &poses, &scene, &opts).expect("exact");
+    let echoes = exact_echoes(source, &poses, &scene, &opts).expect("exact echoes");
+    let n2 = refl.iter().filter(|r| r.order == 2).count();
+    let spec = GridSpec::from_bounds([-3.0, -3.0, 11.0, 9.0], 0.1, u128::MAX).expect("grid");
+    let t0 = std::time::Instant::now();
+    let map = map_evidence(&echoes, spec, &EvidenceParams::default()).expect("evidence map");
+    let t_evidence = t0.elapsed();
+    let t0 = std::time::Instant::now();
+    let paper = paper_highlights(&echoes, spec);
+    let t_paper = t0.elapsed();
+    let observed: Vec<Point> = refl.iter().filter(|r| r.order == 1).flat_map(|r| r.bounces.clone()).collect();
+    let m = surface_metrics(&map.surfaces, &truth, Some(&observed), &MetricParams::default());
+    println!("room 8 x 6 m with a pillar: {} echoes ({n2} second-order)", echoes.len());
+    println!(
+        "  evidence: {} surfaces, P {:.3} R {:.3} F1 {:.3} chamfer {:?}, {} highlights, time {t_evidence:?}",
+        map.surfaces.len(),
+        m.precision,
+        m.recall,
+        m.f1,
+        m.chamfer_m,
+        map.highlights.len()
+    );
+    for wm in &m.walls {
+        println!(
+            "    wall ({:.1},{:.1})-({:.1},{:.1}): offset {:?} angle {:?}",
+            wm.a.x, wm.a.y, wm.b.x, wm.b.y, wm.offset_m, wm.angle_deg
+        );
+    }
+    for s in &map.surfaces {
+        println!(
+            "    {:?} ({:.3}, {:.3})-({:.3}, {:.3}) support {} ambiguous {}",
+            s.kind, s.p0.x, s.p0.y, s.p1.x, s.p1.y, s.support, s.ambiguous
+        );
+    }
+    let paper_hl: Vec<f64> = paper.iter().map(|&p| truth_distance(&truth, p)).collect();
+    println!("  paper: {} highlights at {paper_hl:.3?} m from truth, time {t_paper:?}", paper.len());
+
+    // The four strongest lines are the four walls: offset ≤ 2 cm, angle ≤ 1°.
+    let lines: Vec<_> = map.surfaces.iter().filter(|s| s.kind == SurfaceKind::Line).take(4).collect();
+    assert_eq!(lines.len(), 4);
+    let top4 =
+        surface_metrics(&lines.iter().map(|s| **s).collect::<Vec<_>>(), &truth[..1], None, &MetricParams::default());
+    for wm in &top4.walls {
+        let (off, ang) = (wm.offset_m.expect("wall matched"), wm.angle_deg.expect("wall matched"));
+        assert!(off <= 0.02 && ang <= 1.0, "wall {wm:?}");
+    }
+    // The pillar within 0.1 m of a surface.
+    let pillar_d = sample_surfaces(&map.surfaces, 0.05)
+        .iter()
+        .map(|&p| truth[1].surface_distance(p))
+        .fold(f64::INFINITY, f64::min);
+    println!("  pillar distance {pillar_d:.3} m");
+    assert!(pillar_d <= 0.1, "pillar {pillar_d}");
+    // Nothing inside the room more than 0.2 m from a true surface.
+    let inside_bad: Vec<Point> = sample_surfaces(&map.surfaces, 0.05)
+        .into_iter()
+        .filter(|&p| truth[0].shape.contains(p) && truth_distance(&truth, p) > 0.2)
+        .collect();
+    assert!(
+        inside_bad.is_empty(),
+        "{} samples inside the room off every surface, e.g. {:?}",
+        inside_bad.len(),
+        inside_bad.first()
+    );
+}
+
+#[test]
+fn straight_pass_is_mirror_ambiguous() {
+    // Source on the pass line: every ellipse is symmetric about y = 0, so the
+    // wall y = 3 and its mirror y = −3 explain the same echoes.
+    let truth = [polygon(&[(-5.0, 3.0), (15.0, 3.0), (15.0, 3.5), (-5.0, 3.5)])];
+    let scene = ExactScene::from_obstacles(&truth);
+    let source = Point::new(0.0, 0.0);
+    let poses: Vec<Pose> =
+        (0..60).map(|k| Pose { t_s: k as f64, listener: Point::new(1.0 + 0.15 * k as f64, 0.0) }).collect();
+    let echoes = exact_echoes(source, &poses, &scene, &ExactOptions::default()).expect("exact");
+    let spec = GridSpec::from_bounds([-8.0, -8.0, 18.0, 8.0], 0.1, u128::MAX).expect("grid");
+    let map = map_evidence(&echoes, spec, &EvidenceParams::default()).expect("map");
+    for s in &map.surfaces {
+        println!(
+            "  {:?} ({:.3}, {:.3})-({:.3}, {:.3}) support {} ambiguous {}",
+            s.kind, s.p0.x, s.p0.y, s.p1.x, s.p1.y, s.support, s.ambiguous
+        );
+    }
+    assert!(!map.surfaces.is_empty());
+    assert!(map.surfaces.iter().all(|s| s.ambiguous));
+    // Both the wall and its mirror are reported, so the ghost is not presented as the wall.
+    let near = |y: f64| {
+        map.surfaces
+            .iter()
+            .any(|s| s.kind == SurfaceKind::Line && (s.p0.y - y).abs() < 0.05 && (s.p1.y - y).abs() < 0.05)
+    };
+    assert!(near(3.0) && near(-3.0));
+
+    // The same wall passed at a slant (foci not collinear) is not ambiguous.
+    let poses: Vec<Pose> = (0..60)
+        .map(|k| Pose { t_s: k as f64, listener: Point::new(1.0 + 0.15 * k as f64, -1.0 + 0.05 * k as f64) })
+        .collect();
+    let echoes = exact_echoes(source, &poses, &scene, &ExactOptions::default()).expect("exact");
+    let map = map_evidence(&echoes, spec, &EvidenceParams::default()).expect("map");
+    println!("  slanted pass:");
+    for s in &map.surfaces {
+        println!(
+            "  {:?} ({:.3}, {:.3})-({:.3}, {:.3}) support {} ambiguous {}",
+            s.kind, s.p0.x, s.p0.y, s.p1.x, s.p1.y, s.support, s.ambiguous
+        );
+    }
+    assert!(map.surfaces.iter().any(|s| s.kind == SurfaceKind::Line && !s.ambiguous && (s.p0.y - 3.0).abs() < 0.05));
+}
