@@ -244,6 +244,62 @@ fn range(
     .map_err(value_error)
 }
 
+/// Echoes of a moving listener's recording (`chirpmap map --wav`): the
+/// echoes as an `(n, 8)` or `(n, 9)` table (with `sigma_m`), the chirps
+/// detected and those skipped for want of a pose.
+#[pyfunction]
+#[pyo3(signature = (samples, sample_rate, poses, speaker, method, period_s, frame_s, listener, f_start, f_end, duration, speed_of_sound, max_delta_d))]
+#[allow(clippy::too_many_arguments)]
+fn echoes_from_recording<'py>(
+    py: Python<'py>,
+    samples: PyReadonlyArray1<'py, f32>,
+    sample_rate: f64,
+    poses: PyReadonlyArray2<'py, f64>,
+    speaker: [f64; 2],
+    method: &str,
+    period_s: f64,
+    frame_s: Option<f64>,
+    listener: u32,
+    f_start: f64,
+    f_end: f64,
+    duration: f64,
+    speed_of_sound: f64,
+    max_delta_d: Option<f64>,
+) -> PyResult<(Bound<'py, PyAny>, usize, usize)> {
+    let method: Method = method.parse().map_err(|e| value_error(format!("method: {e}")))?;
+    if !(sample_rate.is_finite() && sample_rate > 0.0) {
+        return Err(value_error(format!("sample_rate: must be finite and > 0 Hz, got {sample_rate}")));
+    }
+    if poses.as_array().ncols() != 3 {
+        return Err(value_error(format!("poses must be (m, 3): t, x, y; got {} columns", poses.as_array().ncols())));
+    }
+    let rows: Vec<(f64, Point)> = poses.as_array().rows().into_iter().map(|r| (r[0], Point::new(r[1], r[2]))).collect();
+    let chirp = ChirpSpec {
+        f_start_hz: f_start,
+        f_end_hz: f_end,
+        duration_s: duration,
+        speed_of_sound_mps: speed_of_sound,
+        max_delta_d_m: max_delta_d,
+    };
+    let params = chirpmap::FrameParams {
+        method,
+        period_s,
+        frame_s,
+        speaker: Point::new(speaker[0], speaker[1]),
+        listener_id: listener,
+    };
+    let x = samples.as_slice().map_err(|_| value_error("samples must be a contiguous array"))?;
+    let got = py
+        .detach(|| -> Result<_, String> {
+            let track = chirpmap::PoseTrack::new(rows).map_err(|e| format!("poses: {}", error_text(&e)))?;
+            let prep = chirpmap::prepare(x.to_vec(), sample_rate, &chirp).map_err(|e| error_text(&e))?;
+            chirpmap::echoes_from_recording(&prep, &track, &params).map_err(|e| error_text(&e))
+        })
+        .map_err(value_error)?;
+    let (rows, cols) = convert::echoes_to_rows(&got.echoes);
+    Ok((table(py, rows, cols)?, got.chirps, got.chirps_without_pose))
+}
+
 /// The compiled part of `chirpmap`; use the functions of the `chirpmap`
 /// package, which document their arguments and results.
 #[pymodule]
@@ -253,5 +309,6 @@ fn _chirpmap(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(map_echoes, m)?)?;
     m.add_function(wrap_pyfunction!(synth, m)?)?;
     m.add_function(wrap_pyfunction!(range, m)?)?;
+    m.add_function(wrap_pyfunction!(echoes_from_recording, m)?)?;
     Ok(())
 }

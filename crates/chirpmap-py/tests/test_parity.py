@@ -243,3 +243,54 @@ def test_range_matches_cli_summary(cli, tmp_path, cli_args, kwargs):
     assert got["chirps"] == 5 and got["estimates"] > 0
     # 1-D input and float64 input (converted to float32, as a WAV is read) agree.
     assert chirpmap.range(samples[:, 0].astype(np.float64), rate, (0, 0), (1.5, 0.5), **kwargs) == got
+
+
+# A listener walking at 1 m/s past a speaker 6 m in front of a wall
+# (examples/moving-wall, fewer chirps), as 32-bit float.
+MOVING_WALL_SCENE = """[chirp]
+f_start = 10000.0
+f_end = 200.0
+duration = 0.25
+
+[source]
+position = [0.0, 0.0]
+
+[[obstacles]]
+vertices = [[-30.0, -6.0], [-30.0, -6.3], [30.0, -6.3], [30.0, -6.0]]
+roughness = 0.0
+absorption = 0.2
+
+[[listeners]]
+start = [-10.0, 3.0]
+heading_deg = 0.0
+speed = 1.0
+
+[synth]
+chirps = 12
+gap_s = 0.25
+snr_db = 20.0
+bits = "f32"
+"""
+
+
+@pytest.mark.parametrize("method", ["gap", "dechirp"])
+def test_echoes_from_recording_match_cli_map_wav(cli, tmp_path, method):
+    scene = tmp_path / "moving.toml"
+    scene.write_text(MOVING_WALL_SCENE)
+    wav, poses_csv = tmp_path / "rec.wav", tmp_path / "poses.csv"
+    run_cli(cli, "synth", scene, "--out", wav, "--poses", poses_csv)
+    run_cli(
+        cli, "map", "--wav", wav, "--poses", poses_csv, "--speaker", "0,0", "--duration", "0.25",
+        "--method", method, "--out", tmp_path / "map",
+    )
+    # The CLI read the WAV and the poses file; so does Python.
+    samples = read_wav_f32(wav)
+    poses = read_table(poses_csv, ["t", "x", "y"])
+    got = chirpmap.echoes_from_recording(samples, 48000, poses, (0, 0), method=method, duration=0.25)
+    assert got.chirps == 12 and got.chirps_without_pose == 0 and len(got.echoes) > 0
+    header = (tmp_path / "map" / "echoes.csv").read_text().splitlines()[0].split(",")
+    want = read_table(tmp_path / "map" / "echoes.csv", header)
+    assert got.echoes.shape == want.shape
+    assert np.array_equal(got.echoes, want, equal_nan=True)
+    # Mapped with the defaults, the CLI's map.
+    check_map_files(tmp_path / "map", chirpmap.map_echoes(got.echoes))

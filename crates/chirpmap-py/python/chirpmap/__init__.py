@@ -15,7 +15,8 @@ bit, for the same inputs:
 >>> run = chirpmap.simulate(seed=3)
 >>> plt.imshow(run.grid, extent=run.extent, origin="lower")
 
-Functions: :func:`simulate`, :func:`map_echoes`, :func:`synth`, :func:`range`.
+Functions: :func:`simulate`, :func:`map_echoes`, :func:`synth`, :func:`range`,
+:func:`echoes_from_recording`.
 Arrays come back as numpy arrays that own Rust's buffers (no copies); every
 long step runs with the GIL released. Bad input raises :class:`ValueError`
 with the CLI's message.
@@ -37,7 +38,9 @@ __version__: str = _chirpmap.__version__
 __all__ = [
     "ECHO_COLUMNS",
     "MapResult",
+    "RecordingEchoes",
     "Simulation",
+    "echoes_from_recording",
     "map_echoes",
     "range",
     "simulate",
@@ -353,14 +356,7 @@ def range(  # noqa: A001 - the name the issue and the CLI use
         mic, chirp, max_delta_d_m, gap_resolution_floor_m`` (and
         ``compare``).
     """
-    x = np.asarray(samples)
-    if x.ndim == 2:
-        if not 0 <= channel < x.shape[1]:
-            raise ValueError(f"channel: {channel} is not a channel of {x.shape[1]}")
-        x = x[:, channel]
-    elif x.ndim != 1:
-        raise ValueError(f"samples must be 1-D or 2-D, got {x.ndim} dimensions")
-    x = np.ascontiguousarray(x, dtype=np.float32)
+    x = _channel(samples, channel)
     if method not in _METHODS:
         raise ValueError(f"method: unknown method {method!r}: use gap, matched or dechirp")
     methods = list(_METHODS) if compare else [method]
@@ -381,6 +377,104 @@ def range(  # noqa: A001 - the name the issue and the CLI use
         None if max_delta_d is None else float(max_delta_d),
     )
     return json.loads(text)
+
+
+@dataclass(frozen=True)
+class RecordingEchoes:
+    """Echoes of a moving listener's recording.
+
+    Attributes:
+        echoes: ``(n, 8)`` float64 in the columns of echoes.csv, or ``(n, 9)``
+            with ``sigma_m`` (the method's 1-σ Δd uncertainty, m) when the
+            method gives one: ready for :func:`map_echoes`.
+        chirps: chirps detected in the recording.
+        chirps_without_pose: chirps skipped because the poses do not cover them.
+    """
+
+    echoes: np.ndarray
+    chirps: int
+    chirps_without_pose: int
+
+    def __repr__(self) -> str:
+        return (
+            f"RecordingEchoes(echoes={len(self.echoes)}, chirps={self.chirps}, "
+            f"chirps_without_pose={self.chirps_without_pose})"
+        )
+
+
+def echoes_from_recording(
+    samples: Any,
+    sample_rate: float,
+    poses: Any,
+    speaker: Sequence[float],
+    method: str = "gap",
+    period_ms: float = 10.0,
+    frame_ms: Optional[float] = None,
+    f_start: float = 10000.0,
+    f_end: float = 200.0,
+    duration: float = 0.5,
+    speed_of_sound: float = 343.0,
+    max_delta_d: Optional[float] = None,
+    channel: int = 0,
+) -> RecordingEchoes:
+    """Echoes of a moving listener's recording, for :func:`map_echoes`.
+
+    The echoes ``chirpmap map --wav REC.wav --poses P.csv --speaker X,Y``
+    extracts (and writes to echoes.csv): every chirp is detected, then one
+    measurement is made every ``period_ms`` at the listener's pose, linearly
+    interpolated between ``poses`` (paper §V.A's sampling period on a real
+    recording).
+
+    Args:
+        samples: 1-D samples, or 2-D ``(n_samples, n_channels)`` with ``channel``.
+        sample_rate: Hz.
+        poses: ``(m, 3)`` array-like ``t, x, y`` (s, m), as :func:`synth`
+            returns per listener and ``chirpmap synth --poses`` writes.
+        speaker: speaker position ``(x, y)`` (m).
+        method: ``"gap"`` (the paper's) or ``"dechirp"``.
+        period_ms: time between measurements (ms). Paper: 1, 10, 50.
+        frame_ms: measurement frame length (ms); default: the method's.
+        f_start, f_end, duration, speed_of_sound, max_delta_d: the chirp and
+            medium, as for :func:`range`.
+        channel: the column of 2-D ``samples``; also the echoes' listener id.
+
+    Returns:
+        A :class:`RecordingEchoes`.
+    """
+    x = _channel(samples, channel)
+    p = np.ascontiguousarray(poses, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise ValueError(f"poses must be an (m, 3) array t, x, y; got shape {p.shape}")
+    if method not in _METHODS:
+        raise ValueError(f"method: unknown method {method!r}: use gap, matched or dechirp")
+    echoes, chirps, skipped = _chirpmap.echoes_from_recording(
+        x,
+        float(sample_rate),
+        p,
+        _point("speaker", speaker),
+        method,
+        float(period_ms) / 1000.0,
+        None if frame_ms is None else float(frame_ms) / 1000.0,
+        int(channel),
+        float(f_start),
+        float(f_end),
+        float(duration),
+        float(speed_of_sound),
+        None if max_delta_d is None else float(max_delta_d),
+    )
+    return RecordingEchoes(echoes, chirps, skipped)
+
+
+def _channel(samples: Any, channel: int) -> np.ndarray:
+    """One channel as contiguous float32 (as a WAV's samples are read)."""
+    x = np.asarray(samples)
+    if x.ndim == 2:
+        if not 0 <= channel < x.shape[1]:
+            raise ValueError(f"channel: {channel} is not a channel of {x.shape[1]}")
+        x = x[:, channel]
+    elif x.ndim != 1:
+        raise ValueError(f"samples must be 1-D or 2-D, got {x.ndim} dimensions")
+    return np.ascontiguousarray(x, dtype=np.float32)
 
 
 #: Largest coordinate accepted (m), as the CLI's X,Y arguments.

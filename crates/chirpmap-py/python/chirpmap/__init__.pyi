@@ -75,3 +75,28 @@ def range(
     channel: int = 0,
 ) -> Dict[str, Any]:
     """Range a recording (paper §IV): the keys of range's summary.json."""
+
+@dataclass(frozen=True)
+class RecordingEchoes:
+    """Echoes (n, 8 or 9) of a moving listener's recording, with chirp counts."""
+
+    echoes: npt.NDArray[np.float64]
+    chirps: int
+    chirps_without_pose: int
+
+def echoes_from_recording(
+    samples: npt.ArrayLike,
+    sample_rate: float,
+    poses: npt.ArrayLike,
+    speaker: Sequence[float],
+    method: str = "gap",
+    period_ms: float = 10.0,
+    frame_ms: Optional[float] = None,
+    f_start: float = 10000.0,
+    f_end: float = 200.0,
+    duration: float = 0.5,
+    speed_of_sound: float = 343.0,
+    max_delta_d: Optional[float] = None,
+    channel: int = 0,
+) -> RecordingEchoes:
+    """Echoes of a moving listener's recording (chirpmap map --wav)."""

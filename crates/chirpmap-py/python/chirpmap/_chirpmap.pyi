@@ -37,3 +37,18 @@ def range(
     speed_of_sound: float,
     max_delta_d: Optional[float],
 ) -> str: ...
+def echoes_from_recording(
+    samples: npt.NDArray[np.float32],
+    sample_rate: float,
+    poses: npt.NDArray[np.float64],
+    speaker: List[float],
+    method: str,
+    period_s: float,
+    frame_s: Optional[float],
+    listener: int,
+    f_start: float,
+    f_end: float,
+    duration: float,
+    speed_of_sound: float,
+    max_delta_d: Optional[float],
+) -> Tuple[npt.NDArray[np.float64], int, int]: ...
