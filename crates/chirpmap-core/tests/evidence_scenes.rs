@@ -202,18 +202,38 @@ fn straight_pass_is_mirror_ambiguous() {
     };
     assert!(near(3.0) && near(-3.0));
 
-    // The same wall passed at a slant (foci not collinear) is not ambiguous.
-    let poses: Vec<Pose> = (0..60)
+    // A straight pass at a slant, source off the pass line: the listeners
+    // are still collinear, so reflecting the wall's image source across
+    // their line gives a second wall with the same echoes. Still ambiguous.
+    let slant: Vec<Pose> = (0..60)
         .map(|k| Pose { t_s: k as f64, listener: Point::new(1.0 + 0.15 * k as f64, -1.0 + 0.05 * k as f64) })
         .collect();
-    let echoes = exact_echoes(source, &poses, &scene, &ExactOptions::default()).expect("exact");
+    let echoes = exact_echoes(source, &slant, &scene, &ExactOptions::default()).expect("exact");
     let map = map_evidence(&echoes, spec, &EvidenceParams::default()).expect("map");
-    println!("  slanted pass:");
-    for s in &map.surfaces {
+    print_surfaces("slanted straight pass", &map.surfaces);
+    assert!(map.surfaces.iter().any(|s| s.kind == SurfaceKind::Line && (s.p0.y - 3.0).abs() < 0.05));
+    assert!(map.surfaces.iter().all(|s| s.ambiguous));
+
+    // A curved pass (a parabola bending 1.8 m): no mirror, not ambiguous.
+    let curved: Vec<Pose> = (0..60)
+        .map(|k| {
+            let u = k as f64 - 30.0;
+            Pose { t_s: k as f64, listener: Point::new(1.0 + 0.15 * k as f64, 0.3 - 0.002 * (900.0 - u * u)) }
+        })
+        .collect();
+    let echoes = exact_echoes(source, &curved, &scene, &ExactOptions::default()).expect("exact");
+    let map = map_evidence(&echoes, spec, &EvidenceParams::default()).expect("map");
+    print_surfaces("curved pass", &map.surfaces);
+    let wall = map.surfaces.iter().find(|s| s.kind == SurfaceKind::Line && (s.p0.y - 3.0).abs() < 0.05);
+    assert!(wall.is_some_and(|w| !w.ambiguous && (w.p1.y - 3.0).abs() < 0.05), "{wall:?}");
+}
+
+fn print_surfaces(label: &str, surfaces: &[chirpmap_core::Surface]) {
+    println!("  {label}:");
+    for s in surfaces {
         println!(
-            "  {:?} ({:.3}, {:.3})-({:.3}, {:.3}) support {} ambiguous {}",
+            "    {:?} ({:.3}, {:.3})-({:.3}, {:.3}) support {} ambiguous {}",
             s.kind, s.p0.x, s.p0.y, s.p1.x, s.p1.y, s.support, s.ambiguous
         );
     }
-    assert!(map.surfaces.iter().any(|s| s.kind == SurfaceKind::Line && !s.ambiguous && (s.p0.y - 3.0).abs() < 0.05));
 }

@@ -1,0 +1,94 @@
+//! The evidence mapper against Algorithm 1 on the same echoes (issue 9:
+//! "the evidence mapper within 3× the paper mapper's time").
+//!
+//! `cargo bench -p chirpmap-core --bench evidence`
+//!
+//! Both sides do the whole job: Algorithm 1 accumulates every echo and
+//! extracts its highlights (threshold + local maxima); the evidence mapper
+//! runs `map_evidence` (free space, tangent-line vote, envelope points, final
+//! map, highlights). Scenes: the 8 m × 6 m room with a pillar and corner
+//! echoes (160 poses, ~1760 echoes, 14 m × 12 m grid at 0.1 m) and the loop
+//! past three circles (160 poses, 480 echoes, 55 m × 50 m grid at 0.1 m), both
+//! from `chirpmap_core::exact`.
+
+use chirpmap_core::exact::{ExactOptions, ExactScene, Pose, exact_echoes};
+use chirpmap_core::{
+    AccumulationMapper, Circle, Echo, EvidenceParams, GridSpec, Mapper, MappingParams, Obstacle, Point, Polygon, Shape,
+    map_evidence,
+};
+
+fn main() {
+    divan::main();
+}
+
+fn obstacle(shape: Shape) -> Obstacle {
+    Obstacle { shape, roughness: 0.0, absorption: 0.0 }
+}
+
+fn loop_poses(centre: Point, rx: f64, ry: f64, n: usize) -> Vec<Pose> {
+    (0..n)
+        .map(|k| {
+            let u = k as f64 * std::f64::consts::TAU / n as f64;
+            Pose { t_s: k as f64, listener: Point::new(centre.x + rx * u.cos(), centre.y + ry * u.sin()) }
+        })
+        .collect()
+}
+
+fn room() -> (Vec<Echo>, GridSpec) {
+    let v = vec![Point::new(0.0, 0.0), Point::new(8.0, 0.0), Point::new(8.0, 6.0), Point::new(0.0, 6.0)];
+    let truth = [
+        obstacle(Shape::Polygon(Polygon::new(v).expect("room"))),
+        obstacle(Shape::Circle(Circle::new(Point::new(5.5, 3.8), 0.3).expect("pillar"))),
+    ];
+    let opts = ExactOptions { second_order: true, ..ExactOptions::default() };
+    let poses = loop_poses(Point::new(4.0, 3.0), 2.6, 1.8, 160);
+    let echoes =
+        exact_echoes(Point::new(2.0, 2.5), &poses, &ExactScene::from_obstacles(&truth), &opts).expect("echoes");
+    (echoes, GridSpec::from_bounds([-3.0, -3.0, 11.0, 9.0], 0.1, u128::MAX).expect("grid"))
+}
+
+fn circles() -> (Vec<Echo>, GridSpec) {
+    let c = |x: f64, y: f64, r: f64| obstacle(Shape::Circle(Circle::new(Point::new(x, y), r).expect("circle")));
+    let truth = [c(-10.0, -20.0, 3.0), c(6.0, -26.0, 4.0), c(14.0, -14.0, 2.5)];
+    let poses = loop_poses(Point::new(2.0, -12.0), 7.0, 4.0, 160);
+    let echoes =
+        exact_echoes(Point::new(0.0, 0.0), &poses, &ExactScene::from_obstacles(&truth), &ExactOptions::default())
+            .expect("echoes");
+    (echoes, GridSpec::from_bounds([-25.0, -40.0, 30.0, 10.0], 0.1, u128::MAX).expect("grid"))
+}
+
+fn paper(echoes: &[Echo], spec: GridSpec) -> usize {
+    let mut m = AccumulationMapper::new(spec, MappingParams::default()).expect("mapper");
+    for e in echoes {
+        m.add_echo(e).expect("echo");
+    }
+    m.highlights().len()
+}
+
+fn evidence(echoes: &[Echo], spec: GridSpec) -> usize {
+    map_evidence(echoes, spec, &EvidenceParams::default()).expect("map").surfaces.len()
+}
+
+#[divan::bench(sample_count = 10)]
+fn room_paper(bencher: divan::Bencher) {
+    let (echoes, spec) = room();
+    bencher.bench_local(|| paper(&echoes, spec));
+}
+
+#[divan::bench(sample_count = 10)]
+fn room_evidence(bencher: divan::Bencher) {
+    let (echoes, spec) = room();
+    bencher.bench_local(|| evidence(&echoes, spec));
+}
+
+#[divan::bench(sample_count = 10)]
+fn circles_paper(bencher: divan::Bencher) {
+    let (echoes, spec) = circles();
+    bencher.bench_local(|| paper(&echoes, spec));
+}
+
+#[divan::bench(sample_count = 10)]
+fn circles_evidence(bencher: divan::Bencher) {
+    let (echoes, spec) = circles();
+    bencher.bench_local(|| evidence(&echoes, spec));
+}
