@@ -40,6 +40,8 @@
 //! [`core`] (geometry, chirps, ellipses, mappers, scores), [`sim`] (the
 //! particle simulator) and [`audio`] (WAV, detection, ranging, synthesis).
 
+#![warn(missing_docs)]
+
 mod error;
 mod mapping;
 mod recording;
