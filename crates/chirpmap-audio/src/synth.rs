@@ -133,11 +133,7 @@ pub fn parse_scene_with_synth(text: &str) -> Result<(Scene, SynthConfig), AudioE
         None => (Scene::from_toml_str(text)?, SynthConfig::default()),
         Some(synth) => {
             let cfg: SynthConfig = synth.try_into().map_err(|e: toml::de::Error| {
-                let mut msg = e.message().lines().next().unwrap_or("").to_string();
-                if msg.chars().count() > 2 * chirpmap_core::error::EXCERPT_CHARS {
-                    msg = chirpmap_core::error::excerpt(&msg, 0);
-                }
-                invalid(format!("[synth]: {msg}"))
+                invalid(format!("[synth]: {}", chirpmap_core::error::short_message(e.message())))
             })?;
             let rest = toml::to_string(&table).map_err(|e| invalid(e.to_string()))?;
             (Scene::from_toml_str(&rest)?, cfg)

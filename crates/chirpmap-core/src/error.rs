@@ -93,15 +93,29 @@ pub fn excerpt(line: &str, col: usize) -> String {
     s
 }
 
+/// Longest error message kept from a parser (characters).
+const MESSAGE_CHARS: usize = 300;
+
+/// The first line of a parser's message, with every `` `quoted` `` part (a
+/// key or value from the input, possibly megabytes long) cut to an excerpt,
+/// and the whole cut to [`MESSAGE_CHARS`]. Lists of expected keys survive.
+pub fn short_message(message: &str) -> String {
+    let first = message.lines().next().unwrap_or("");
+    let parts: Vec<String> = first
+        .split('`')
+        .enumerate()
+        .map(|(k, part)| if k % 2 == 1 { excerpt(part, 0) } else { part.to_string() })
+        .collect();
+    let joined = parts.join("`");
+    if joined.chars().count() > MESSAGE_CHARS { excerpt(&joined, 0) } else { joined }
+}
+
 /// A one-line description of a TOML error in `text`: `line L, column C: what
 /// (near `excerpt`)`. The `toml` crate's own `Display` quotes the whole
 /// offending line (and the message may repeat the value), so a 1 MB value
 /// gave megabytes of error text; this quotes a short excerpt once.
 pub fn toml_error(text: &str, e: &toml::de::Error) -> String {
-    let mut msg: String = e.message().lines().next().unwrap_or("").to_string();
-    if msg.chars().count() > 2 * EXCERPT_CHARS {
-        msg = excerpt(&msg, 0);
-    }
+    let msg = short_message(e.message());
     let Some(span) = e.span() else { return msg };
     let at = span.start.min(text.len());
     let at = (0..=at).rev().find(|&i| text.is_char_boundary(i)).unwrap_or(0);
@@ -164,6 +178,16 @@ mod tests {
         let msg = toml_error(&text, &e);
         assert!(msg.len() < 300, "{} chars: {}", msg.len(), &msg[..300.min(msg.len())]);
         assert!(msg.starts_with("line 2, column "), "{msg}");
+        // A megabyte-long unknown key is quoted short; the expected keys stay listed.
+        let text = format!("[world]\n{long} = 1\n");
+        let e = toml::from_str::<crate::Scene>(&text).unwrap_err();
+        let msg = toml_error(&text, &e);
+        assert!(
+            msg.len() < 400 && msg.contains("speed_of_sound"),
+            "{} chars: {}",
+            msg.len(),
+            &msg[..300.min(msg.len())]
+        );
         assert_eq!(excerpt("abc", 1), "abc");
         let cut = excerpt(&"0123456789".repeat(20), 100);
         assert!(cut.starts_with('…') && cut.ends_with('…') && cut.chars().count() == EXCERPT_CHARS + 2, "{cut}");
