@@ -77,7 +77,11 @@ pub fn read_rows(path: &Path, plan: &Plan) -> Result<Vec<RunRow>, ExperimentErro
     if have != want {
         return Err(ExperimentError::file(
             path,
-            format!("header {:?} does not match this sweep's {:?}", have.join(","), want.join(",")),
+            format!(
+                "header {:?} does not match this sweep's {:?}",
+                chirpmap_core::error::excerpt(&have.join(","), 0),
+                want.join(",")
+            ),
         ));
     }
     let np = plan.def.params.len();

@@ -238,3 +238,16 @@ fn recorded_sweeps_still_plan() {
         def.plan(|_| Ok(())).unwrap_or_else(|e| panic!("{}: {e}", f.display()));
     }
 }
+
+/// Issue 8, item 15: a damaged runs.csv header is quoted as a short excerpt.
+#[test]
+fn a_damaged_header_is_quoted_short() {
+    let plan = SweepDef::from_toml_str(SWEEP).unwrap().plan(|_| Ok(())).unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path().join("a");
+    run_sweep(&plan, &d, Shard::ALL, 1, fake, |_, _| {}).unwrap();
+    let runs = d.join("runs.csv");
+    std::fs::write(&runs, format!("{}\n", "x".repeat(1_000_000))).unwrap();
+    let e = run_sweep(&plan, &d, Shard::ALL, 1, fake, |_, _| {}).unwrap_err().to_string();
+    assert!(e.len() < 600 && e.contains("does not match"), "{} chars", e.len());
+}
