@@ -112,7 +112,7 @@ pub(crate) fn solve_linear(mut m: Vec<Vec<f64>>, mut r: Vec<f64>) -> Option<Vec<
     let tiny = 1e-12 * scale;
     for col in 0..n {
         let piv = (col..n).max_by(|&i, &j| m[i][col].abs().total_cmp(&m[j][col].abs()))?;
-        if !(m[piv][col].abs() > tiny) {
+        if m[piv][col].is_nan() || m[piv][col].abs() <= tiny {
             return None;
         }
         m.swap(col, piv);

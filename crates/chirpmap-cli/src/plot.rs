@@ -120,6 +120,53 @@ impl ColourMap {
     }
 }
 
+/// How grid values map to colour.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum ColourScale {
+    /// `√(value / max)` over [0, max] (negative values show as 0): single
+    /// faint ellipses stay visible next to dense spots; for Algorithm 1's
+    /// accumulated weights.
+    #[default]
+    SqrtOfMax,
+    /// Linear over [min, max] of the finite values, any sign; for maps with
+    /// negative values such as log-odds of occupancy.
+    Linear,
+}
+
+impl ColourScale {
+    /// The value range the colour bar spans for `data`.
+    fn range(self, data: &[f64]) -> (f64, f64) {
+        let finite = data.iter().copied().filter(|v| v.is_finite());
+        let max = finite.clone().fold(f64::NEG_INFINITY, f64::max);
+        let (lo, hi) = match self {
+            Self::SqrtOfMax => (0.0, max.max(0.0)),
+            Self::Linear => (finite.fold(f64::INFINITY, f64::min), max),
+        };
+        if lo.is_finite() && hi > lo {
+            (lo, hi)
+        } else {
+            let lo = if lo.is_finite() { lo } else { 0.0 };
+            (lo, lo + 1.0)
+        }
+    }
+
+    /// The scale for a map: [`ColourScale::Linear`] when any value is
+    /// negative (a signed quantity such as log-odds), else
+    /// [`ColourScale::SqrtOfMax`].
+    pub fn for_values(data: &[f64]) -> Self {
+        if data.iter().any(|v| *v < 0.0) { Self::Linear } else { Self::SqrtOfMax }
+    }
+
+    /// Position in [0, 1] on the colour map of `v` within `range`.
+    fn position(self, v: f64, (lo, hi): (f64, f64)) -> f64 {
+        let u = ((v - lo) / (hi - lo)).clamp(0.0, 1.0);
+        match self {
+            Self::SqrtOfMax => u.sqrt(),
+            Self::Linear => u,
+        }
+    }
+}
+
 // Overlay colours chosen to stand out on every part of viridis (which has no
 // red, white or light cyan) and to stay apart from each other.
 const HIGHLIGHT: RGBColor = RGBColor(230, 30, 40);
@@ -146,15 +193,14 @@ pub struct MapPlot<'a> {
     pub obstacles: &'a [Obstacle],
 }
 
-/// Optional extras of a map figure; `Default` draws what [`render_map`] draws.
-// Used once the commands pass surfaces / a colour map (issue 13).
-#[allow(dead_code)]
+/// Optional extras of a map figure ([`render_map_with`]); `Default` draws none.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct MapStyle<'a> {
     /// Wall segments and points reported by an evidence mapper: solid orange
     /// lines (dashed when ambiguous), points as crosses.
     pub surfaces: &'a [Surface],
-    /// Colour scale of the grid values.
+    /// Colour map of the grid values (the scale follows the values: see
+    /// [`ColourScale::for_values`]).
     pub colour_map: ColourMap,
     /// Label of the colour bar (default "accumulated weight").
     pub value_label: Option<&'a str>,
@@ -197,7 +243,7 @@ fn clip_segment(a: (f64, f64), b: (f64, f64), x: (f64, f64), y: (f64, f64)) -> O
             }
         }
     }
-    (t0 <= t1).then(|| ((a.0 + t0 * dx, a.1 + t0 * dy), (a.0 + t1 * dx, a.1 + t1 * dy)))
+    (t0 <= t1).then_some(((a.0 + t0 * dx, a.1 + t0 * dy), (a.0 + t1 * dx, a.1 + t1 * dy)))
 }
 
 /// `path` cut to the box: the runs of it that lie inside, so nothing outside
@@ -280,10 +326,17 @@ fn map_layout(x: (f64, f64), y: (f64, f64)) -> MapLayout {
 /// RGB raster (`w` × `h`, top row first) of `grid` over the world window
 /// `x_range` × `y_range`: each pixel shows the largest value among the cells
 /// it covers (so thin ellipses never vanish when a pixel spans several
-/// cells), coloured by `cmap(√(v/max))`; outside the grid stays white.
-fn grid_raster(grid: &Grid, (w, h): (u32, u32), x_range: (f64, f64), y_range: (f64, f64), cmap: ColourMap) -> Vec<u8> {
+/// cells), coloured by `cmap` on `scale`; outside the grid stays white.
+fn grid_raster(
+    grid: &Grid,
+    (w, h): (u32, u32),
+    x_range: (f64, f64),
+    y_range: (f64, f64),
+    cmap: ColourMap,
+    scale: ColourScale,
+) -> Vec<u8> {
     let spec = grid.spec;
-    let max = grid.max();
+    let range = scale.range(&grid.data);
     let mut buf = vec![255u8; (w as usize) * (h as usize) * 3];
     if grid.data.len() != spec.len() || spec.is_empty() {
         return buf;
@@ -309,13 +362,12 @@ fn grid_raster(grid: &Grid, (w, h): (u32, u32), x_range: (f64, f64), y_range: (f
         let Some((j0, j1)) = cells(yb - my, yb, spec.y_min_m, spec.ny) else { continue };
         for (sx, c) in cols.iter().enumerate() {
             let Some((i0, i1)) = *c else { continue };
-            let mut v = 0.0f64;
+            let mut v = f64::NEG_INFINITY;
             for j in j0..j1 {
                 let row = &grid.data[j * spec.nx..(j + 1) * spec.nx];
                 v = row[i0..i1].iter().fold(v, |m, x| m.max(*x));
             }
-            let t = if max > 0.0 { (v / max).sqrt() } else { 0.0 };
-            let col = cmap.eval(t);
+            let col = cmap.eval(scale.position(v, range));
             let k = ((sy as usize) * (w as usize) + sx) * 3;
             buf[k..k + 3].copy_from_slice(&[col.0, col.1, col.2]);
         }
@@ -396,16 +448,12 @@ pub fn nice_ticks(lo: f64, hi: f64, n: usize) -> Vec<f64> {
     (first..=last).map(|k| k as f64 * step).collect()
 }
 
-/// Heat map of the accumulation with highlights, sources, listener path and
-/// obstacles; axes in metres at 1:1 and a colour bar. Colour is √(value/max)
-/// so faint single ellipses stay visible; the bar is labelled in true values.
-/// Writes SVG when `path` ends in `.svg`, PNG otherwise.
-pub fn render_map(path: &Path, plot: &MapPlot) -> Result<()> {
-    render_map_with(path, plot, &MapStyle::default())
-}
-
-/// [`render_map`] with the extras of [`MapStyle`] (evidence-mapper surfaces,
-/// colour map, colour-bar label).
+/// Heat map of the grid with highlights, sources, listener path, obstacles
+/// and evidence-mapper surfaces; axes in metres at 1:1 and a colour bar.
+/// Colour is √(value/max) so faint single ellipses stay visible (linear over
+/// [min, max] for maps with negative values, such as log-odds); the bar is
+/// labelled in true values. [`MapStyle`] holds the extras (surfaces, colour
+/// map, colour-bar label). Writes SVG when `path` ends in `.svg`, PNG otherwise.
 pub fn render_map_with(path: &Path, plot: &MapPlot, style: &MapStyle) -> Result<()> {
     ensure_font();
     let spec = plot.grid.spec;
@@ -455,7 +503,8 @@ where
 
     let (px, py) = chart.plotting_area().get_pixel_range();
     let (pw, ph) = ((px.end - px.start).max(1) as u32, (py.end - py.start).max(1) as u32);
-    let raster = grid_raster(plot.grid, (pw, ph), layout.x_range, layout.y_range, style.colour_map);
+    let scale = ColourScale::for_values(&plot.grid.data);
+    let raster = grid_raster(plot.grid, (pw, ph), layout.x_range, layout.y_range, style.colour_map, scale);
     if let Some(img) = BitMapElement::<_>::with_owned_buffer((px.start, py.start), (pw, ph), raster) {
         root.draw(&img).map_err(plot_err)?;
     }
@@ -529,14 +578,13 @@ where
         .draw()
         .map_err(plot_err)?;
 
-    let max = plot.grid.max();
-    let top = if max > 0.0 { max } else { 1.0 };
     let cmap = style.colour_map;
+    let range = scale.range(&plot.grid.data);
     colour_bar(
         &right,
-        (0.0, top),
+        range,
         style.value_label.unwrap_or("accumulated weight"),
-        |v| cmap.eval((v / top).sqrt()),
+        |v| cmap.eval(scale.position(v, range)),
         (MARGIN, MARGIN + X_LABELS),
     )?;
     root.present().map_err(plot_err)?;
@@ -777,7 +825,7 @@ mod tests {
     fn raster_puts_rows_of_y_max_on_top_and_keeps_single_cells() {
         let g = test_grid();
         // 4 px per cell.
-        let r = grid_raster(&g, (160, 40), (0.0, 40.0), (0.0, 10.0), ColourMap::Viridis);
+        let r = grid_raster(&g, (160, 40), (0.0, 40.0), (0.0, 10.0), ColourMap::Viridis, ColourScale::SqrtOfMax);
         let px = |x: usize, y: usize| [r[(y * 160 + x) * 3], r[(y * 160 + x) * 3 + 1], r[(y * 160 + x) * 3 + 2]];
         let top = ColourMap::Viridis.eval(1.0);
         // Cell (5, 3): x in [5, 6) → px 20..24; y in [3, 4) → rows from the top 24..28.
@@ -787,8 +835,28 @@ mod tests {
         let zero = ColourMap::Viridis.eval(0.0);
         assert_eq!(px(80, 20), [zero.0, zero.1, zero.2]);
         // Downsampled 10×: the single hot cell still shows (max, not mean).
-        let small = grid_raster(&g, (4, 1), (0.0, 40.0), (0.0, 10.0), ColourMap::Viridis);
+        let small = grid_raster(&g, (4, 1), (0.0, 40.0), (0.0, 10.0), ColourMap::Viridis, ColourScale::SqrtOfMax);
         assert_eq!(&small[..3], &[top.0, top.1, top.2]);
+    }
+
+    #[test]
+    fn linear_scale_spans_negative_values() {
+        // Log-odds: -2 (free) … 0 (unknown) … 2 (occupied).
+        let spec = GridSpec { x_min_m: 0.0, y_min_m: 0.0, cell_m: 1.0, nx: 3, ny: 1 };
+        let g = Grid { spec, data: vec![-2.0, 0.0, 2.0] };
+        assert_eq!(ColourScale::Linear.range(&g.data), (-2.0, 2.0));
+        assert_eq!(ColourScale::SqrtOfMax.range(&g.data), (0.0, 2.0));
+        let r = grid_raster(&g, (3, 1), (0.0, 3.0), (0.0, 1.0), ColourMap::Viridis, ColourScale::Linear);
+        let at = |k: usize| RGBColor(r[3 * k], r[3 * k + 1], r[3 * k + 2]);
+        assert_eq!(at(0), ColourMap::Viridis.eval(0.0));
+        assert_eq!(at(1), ColourMap::Viridis.eval(0.5));
+        assert_eq!(at(2), ColourMap::Viridis.eval(1.0));
+        // A constant or empty map still has a usable range.
+        assert_eq!(ColourScale::Linear.range(&[3.0, 3.0]), (3.0, 4.0));
+        assert_eq!(ColourScale::SqrtOfMax.range(&[]), (0.0, 1.0));
+        assert_eq!(ColourScale::Linear.range(&[f64::NAN]), (0.0, 1.0));
+        assert_eq!(ColourScale::for_values(&g.data), ColourScale::Linear);
+        assert_eq!(ColourScale::for_values(&[0.0, 3.0]), ColourScale::SqrtOfMax);
     }
 
     #[test]
