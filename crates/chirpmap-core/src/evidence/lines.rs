@@ -61,7 +61,15 @@ fn tau(ctx: &Ctx, k: usize) -> f64 {
 }
 
 fn rho_of(ctx: &Ctx, k: usize, theta: f64, origin: Point) -> f64 {
-    far_tangent(&ctx.preps[k].ellipse, Point::from_angle(theta), origin).0
+    rho_n(ctx, k, Point::from_angle(theta), origin)
+}
+
+/// Far tangent offset for the unit normal `n` (no trigonometry).
+fn rho_n(ctx: &Ctx, k: usize, n: Point, origin: Point) -> f64 {
+    let e = &ctx.preps[k].ellipse;
+    let nu = n.x * e.cos_t + n.y * e.sin_t;
+    let nv = -n.x * e.sin_t + n.y * e.cos_t;
+    far_offset(e.semi_major_m * e.semi_major_m, e.semi_minor_m * e.semi_minor_m, nu, nv, n.dot(e.center - origin))
 }
 
 fn median(v: &mut [f64]) -> f64 {
@@ -75,7 +83,8 @@ fn median(v: &mut [f64]) -> f64 {
 /// mean. Returns `(count, mean)`.
 fn densest(ctx: &Ctx, set: &[usize], theta: f64, origin: Point, buf: &mut Vec<f64>) -> (usize, f64) {
     buf.clear();
-    buf.extend(set.iter().map(|&k| rho_of(ctx, k, theta, origin)));
+    let n = Point::from_angle(theta);
+    buf.extend(set.iter().map(|&k| rho_n(ctx, k, n, origin)));
     buf.sort_by(f64::total_cmp);
     let mut sig: Vec<f64> = set.iter().map(|&k| ctx.preps[k].sigma_m).collect();
     let width = 2.0 * ctx.params.band_sigmas * median(&mut sig);
@@ -118,7 +127,8 @@ fn golden(mut lo: f64, mut hi: f64, mut f: impl FnMut(f64) -> f64) -> f64 {
 
 /// Echoes whose far tangent at `theta` lies within their band of `rho`.
 fn gather(ctx: &Ctx, theta: f64, rho: f64, origin: Point, extra: f64) -> Vec<usize> {
-    (0..ctx.preps.len()).filter(|&k| (rho_of(ctx, k, theta, origin) - rho).abs() <= tau(ctx, k) + extra).collect()
+    let n = Point::from_angle(theta);
+    (0..ctx.preps.len()).filter(|&k| (rho_n(ctx, k, n, origin) - rho).abs() <= tau(ctx, k) + extra).collect()
 }
 
 /// Keeps, per measurement, the echo closest to the line, and only
@@ -176,8 +186,9 @@ fn segment_of(theta: f64, rho: f64, origin: Point, touches: &[(usize, Point)]) -
 /// Weighted variance of the tangent offsets of `set` at `theta`, and their mean.
 fn spread(ctx: &Ctx, set: &[usize], theta: f64, origin: Point) -> (f64, f64) {
     let (mut sw, mut swr, mut swr2) = (0.0, 0.0, 0.0);
+    let n = Point::from_angle(theta);
     for &k in set {
-        let r = rho_of(ctx, k, theta, origin);
+        let r = rho_n(ctx, k, n, origin);
         let w = 1.0 / (ctx.preps[k].sigma_m * ctx.preps[k].sigma_m);
         sw += w;
         swr += w * r;
@@ -194,7 +205,7 @@ fn spread(ctx: &Ctx, set: &[usize], theta: f64, origin: Point) -> (f64, f64) {
 /// mean), re-gathering the echoes within their band each round.
 fn refine(ctx: &Ctx, theta0: f64, rho0: f64, origin: Point, bin: f64, rho_bin: f64) -> Option<Cand> {
     let mut buf = Vec::new();
-    const STEPS: usize = 80;
+    const STEPS: usize = 40;
     let (mut theta, mut rho) = (theta0, rho0);
     let mut step = bin;
     // Scan ±2 bins for the angle where the tangent offsets agree best
@@ -212,10 +223,11 @@ fn refine(ctx: &Ctx, theta0: f64, rho0: f64, origin: Point, bin: f64, rho_bin: f
         for s in 0..=STEPS {
             let th = lo + step * s as f64;
             let (_, centre) = densest(ctx, &set0, th, origin, &mut buf);
+            let n = Point::from_angle(th);
             let score: f64 = set0
                 .iter()
                 .map(|&k| {
-                    let x = (rho_of(ctx, k, th, origin) - centre) / ctx.preps[k].sigma_m;
+                    let x = (rho_n(ctx, k, n, origin) - centre) / ctx.preps[k].sigma_m;
                     (-0.5 * x * x).exp()
                 })
                 .sum();
@@ -521,9 +533,27 @@ pub(crate) fn find_lines(ctx: &Ctx) -> LinesResult {
     peaks.truncate(4 * p.max_surfaces as usize);
 
     // Refine, keep lines, drop duplicates (same orientation, shared echoes).
-    let mut cands: Vec<Cand> = peaks
-        .iter()
-        .filter_map(|&(_, t, b)| refine(ctx, t as f64 * bin, b as f64 * rho_bin - r_max, origin, bin, rho_bin))
+    // A peak next to a line already refined (within 2 bins in angle, and
+    // that line's midpoint within 2 offset bins plus a band of the peak's
+    // line) is the same line's skirt: refining it again finds that line.
+    let mut refined: Vec<Cand> = Vec::new();
+    for &(_, t, b) in &peaks {
+        let (theta, rho) = (t as f64 * bin, b as f64 * rho_bin - r_max);
+        let n = Point::from_angle(theta);
+        let near = refined.iter().any(|c| {
+            let mid = (c.p0 + c.p1) * 0.5;
+            angle_diff(theta, c.theta) <= 2.0 * bin
+                && (n.dot(mid - origin) - rho).abs() <= 2.0 * rho_bin + p.band_sigmas * p.default_sigma_m
+        });
+        if near {
+            continue;
+        }
+        if let Some(c) = refine(ctx, theta, rho, origin, bin, rho_bin) {
+            refined.push(c);
+        }
+    }
+    let mut cands: Vec<Cand> = refined
+        .into_iter()
         .filter(|c| c.support() >= p.min_support as usize && c.length() >= p.min_line_length_m)
         .filter(|c| !curved(ctx, c, origin) && heard_ratio(ctx, c, origin) >= 1.0 - p.ghost_fraction)
         .collect();
