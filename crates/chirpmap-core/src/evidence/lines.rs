@@ -493,9 +493,10 @@ pub(crate) fn find_lines(ctx: &Ctx) -> LinesResult {
                 continue;
             }
             let row = &mut acc[t * n_rho..(t + 1) * n_rho];
-            for b in lo as usize..=hi as usize {
-                let d = (b as f64 * rho_bin - r_max - rho).abs();
-                row[b] += (1.0 - d * inv_half).max(0.0) as f32;
+            let first = lo as usize;
+            for (i, v) in row[first..=hi as usize].iter_mut().enumerate() {
+                let d = ((first + i) as f64 * rho_bin - r_max - rho).abs();
+                *v += (1.0 - d * inv_half).max(0.0) as f32;
             }
         }
     }

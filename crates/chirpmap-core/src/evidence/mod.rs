@@ -151,7 +151,7 @@ impl EvidenceParams {
             ("evidence.point_radius_m", self.point_radius_m),
             ("evidence.peak_radius_m", self.peak_radius_m),
         ] {
-            if !(v.is_finite() && v >= 0.0 && v <= 1e3) {
+            if !(v.is_finite() && (0.0..=1e3).contains(&v)) {
                 return bad(field, "must be finite and in [0, 1000] m");
             }
         }
@@ -401,7 +401,7 @@ pub fn map_evidence(echoes: &[Echo], spec: GridSpec, params: &EvidenceParams) ->
     let highlights = local_maxima(&kept, r_cells);
 
     let mut surfaces: Vec<Surface> = surfaces.into_iter().map(|(s, _)| s).collect();
-    surfaces.sort_by(|a, b| b.support.cmp(&a.support));
+    surfaces.sort_by_key(|s| std::cmp::Reverse(s.support));
     surfaces.truncate(params.max_surfaces as usize);
     Ok(EvidenceMap { grid, surfaces, highlights, cells_updated })
 }
