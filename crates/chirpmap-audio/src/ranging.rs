@@ -12,7 +12,7 @@
 //!   in the same frame; near the floor the reflected peak otherwise leans on
 //!   the direct one's window leakage (+10 % at 2.1× the floor, now −0.9 %). Frames of `sqrt(T/B)`
 //!   balance bin width against the sweep's smear within a frame, which
-//!   gives the resolution floor a·sqrt(T/B) (DESIGN.md, physics notes).
+//!   gives the resolution floor a·sqrt(T/B) (docs/architecture.md, physics notes).
 //! - [`Method::Matched`] — ours: correlate with the known chirp, take the
 //!   envelope (analytic signal), Δt between the direct and the first
 //!   reflection peaks, each refined to a fraction of a sample.
@@ -94,7 +94,7 @@ pub struct Estimate {
     pub relative_level: f64,
 }
 
-/// The gap method's resolution floor a·sqrt(T/B) (m) (DESIGN.md). With
+/// The gap method's resolution floor a·sqrt(T/B) (m) (docs/architecture.md, physics notes). With
 /// Hann frames of sqrt(T/B) the two peaks are reliably separate only from
 /// about [`GAP_RELIABLE_FACTOR`] × this floor (measured, EXPERIMENTS.md).
 pub fn gap_floor_m(tpl: &ChirpTemplate, speed_of_sound_mps: f64) -> f64 {

@@ -1,7 +1,7 @@
 //! Waveform synthesizer (issue 5, item 1): what a listener's microphone
 //! records when the Source plays a chirp train in a scene.
 //!
-//! Model (DESIGN.md, physics notes): a static source and static reflectors
+//! Model (docs/architecture.md, physics notes): a static source and static reflectors
 //! make image sources static, so a moving listener at `x_L(t)` records
 //! exactly `y(t) = Σᵢ gᵢ · s(t − rᵢ(x_L(t))/a)` with `rᵢ` the length of path
 //! i — Doppler follows from the geometry, with the exact propagation delay

@@ -1,4 +1,4 @@
-//! The echoes CSV of DESIGN.md: one ellipse a row, header required, extra
+//! The echoes CSV of docs/file-formats.md: one ellipse a row, header required, extra
 //! columns ignored; `weight` defaults to 1, `t`, `listener` and `sigma_m`
 //! (the 1-σ uncertainty of Δd, m) are optional.
 //!

@@ -1,5 +1,5 @@
 //! The scene file (TOML). Every field has a default, so an empty file is the
-//! paper's default scene (DESIGN.md, "Parameters"). Unknown keys are errors.
+//! paper's default scene (docs/parameters.md). Unknown keys are errors.
 
 use crate::chirp::{ExponentialChirp, LinearChirp, Sweep};
 use crate::error::{CoreError, Num, toml_error};
@@ -37,7 +37,7 @@ fn exact_points_opt<'de, D: Deserializer<'de>>(d: D) -> Result<Option<Vec<[f64; 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct Scene {
-    /// Master seed of the run's random stream (DESIGN.md: `ChaCha8Rng::seed_from_u64(seed)`).
+    /// Master seed of the run's random stream (docs/architecture.md: `ChaCha8Rng::seed_from_u64(seed)`).
     pub seed: u64,
     /// Run index: the stream of the master generator (`set_stream(run_index)`), so run i of a
     /// sweep draws the same obstacles in every configuration (paper §III).

@@ -1,5 +1,5 @@
 //! The paper's two experiments as built-in sweeps (§III.B Table I, §III.C
-//! Table II; parameters in DESIGN.md).
+//! Table II; parameters in docs/parameters.md).
 
 use crate::sweep::SweepDef;
 
@@ -37,7 +37,7 @@ baseline = "0"
     )
 }
 
-/// Table II: Listener 1 relative to Listener 0 (DESIGN.md, paper Fig. 5).
+/// Table II: Listener 1 relative to Listener 0 (docs/parameters.md, paper Fig. 5).
 /// `l0` is Listener 0's start, heading +x; `path_len_m` the distance it covers.
 fn table2(l0: [f64; 2], path_len_m: f64) -> String {
     let [x, y] = l0;

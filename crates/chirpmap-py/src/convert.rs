@@ -6,7 +6,7 @@ use chirpmap::core::error::Num;
 use chirpmap::core::geometry::MAX_COORD_M;
 use chirpmap::{Echo, EvidenceParams, Highlight, MapperKind, MappingParams, Point, Scene, Surface, SynthConfig};
 
-/// Columns of `echoes.csv` (DESIGN.md), in the order the bindings' N × k
+/// Columns of `echoes.csv` (docs/file-formats.md), in the order the bindings' N × k
 /// arrays use: the first five are required, then `weight`, `t`, `listener`
 /// and `sigma_m` (the 1-σ uncertainty of Δd, m; NaN = none).
 pub const ECHO_COLUMNS: [&str; 9] =

@@ -184,7 +184,7 @@ pub fn find_peaks(bins: &[(i64, f64)], merge_gap_bins: i64) -> Vec<Peak> {
     peaks
 }
 
-/// The direct peak, picked by prediction (DESIGN.md "Physics notes"): the
+/// The direct peak, picked by prediction (docs/architecture.md, "Physics notes"): the
 /// listener knows D, so the direct sound must be near f(t − D/a). The peak
 /// whose span (widened by the merge gap) contains the prediction wins, the
 /// nearest centre among several; no such peak (shadowed, not yet arrived, or

@@ -35,7 +35,7 @@ pub fn emission_dir(table_dir: Point, offset_cos_sin: (f64, f64)) -> Point {
 
 /// Outgoing direction after a bounce on a surface with outward unit `normal`.
 ///
-/// Roughness (DESIGN.md, "ours"): the specular direction is rotated by a
+/// Roughness (docs/parameters.md, "ours"): the specular direction is rotated by a
 /// uniform angle in ±roughness·90°; a rotation that would point into the
 /// surface is folded back about the surface tangent, so the particle always
 /// leaves the obstacle. `u01` is the particle's bounce random number.

@@ -12,7 +12,7 @@ use chirpmap_core::scene::{ObstacleSpec, Sampling};
 use chirpmap_core::{Obstacle, Point, Scene, Shape, Sweep};
 use rand::Rng;
 
-/// Spectrum bin width (Hz), DESIGN.md "ours".
+/// Spectrum bin width (Hz), docs/parameters.md "ours".
 pub const BIN_HZ: f64 = 10.0;
 /// Random obstacles keep at least this gap (m) from the source.
 pub const SOURCE_CLEARANCE_M: f64 = 1.0;

@@ -1,4 +1,4 @@
-//! Explicit randomness (DESIGN.md): every run draws from
+//! Explicit randomness (docs/architecture.md): every run draws from
 //! `ChaCha8Rng::seed_from_u64(seed)` with `set_stream(run_index)`.
 //!
 //! The master stream is split into purpose sub-seeds drawn in a fixed order,
