@@ -116,6 +116,9 @@ pub fn run(args: &MapArgs) -> Result<()> {
     let opts = MapOptions { params, bounds: args.bounds, ..MapOptions::default() };
     let map = chirpmap::map_echoes(&echoes, &extra, &opts).with_context(|| format!("{}", label.display()))?;
     let (sources, listeners) = chirpmap::foci(&echoes);
+    // One marker per map cell is all a figure can show; 300 000 distinct
+    // sources would otherwise cost more to draw than to map.
+    let sources = one_per_cell(&sources, &map.grid.spec);
     if args.wav.is_some() {
         let mut buf = Vec::new();
         crate::echoes_csv::write_echoes(&mut buf, &echoes)?;
@@ -167,6 +170,20 @@ pub fn run(args: &MapArgs) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// The first point in each grid cell (points off the grid are kept).
+fn one_per_cell(points: &[Point], spec: &chirpmap::GridSpec) -> Vec<Point> {
+    let mut seen = std::collections::HashSet::new();
+    points
+        .iter()
+        .copied()
+        .filter(|p| {
+            let i = ((p.x - spec.x_min_m) / spec.cell_m).floor();
+            let j = ((p.y - spec.y_min_m) / spec.cell_m).floor();
+            !(i.is_finite() && j.is_finite()) || seen.insert((i as i64, j as i64))
+        })
+        .collect()
 }
 
 /// `map --wav`: the facade's echoes of a moving listener's recording.
