@@ -32,14 +32,7 @@ impl Default for ChirpSpec {
     /// The scene's defaults, so that `synth` on a scene without `[chirp]`
     /// and `range` with its defaults agree.
     fn default() -> Self {
-        let scene = Scene::default();
-        Self {
-            f_start_hz: scene.chirp.f_start,
-            f_end_hz: scene.chirp.f_end,
-            duration_s: scene.chirp.duration,
-            speed_of_sound_mps: scene.world.speed_of_sound,
-            max_delta_d_m: None,
-        }
+        Self::from_scene(&Scene::default())
     }
 }
 
