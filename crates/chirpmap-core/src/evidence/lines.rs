@@ -500,10 +500,10 @@ pub(crate) fn find_lines(ctx: &Ctx) -> LinesResult {
             }
         }
     }
-    // Peaks: votes ≥ min_support / 2 and maximal among the 8 neighbours
+    // Peaks: votes ≥ min_support and maximal among the 8 neighbours
     // (θ wraps); equal neighbours earlier in scan order win.
     let mut peaks: Vec<(f32, usize, usize)> = Vec::new();
-    let min_votes = 0.5 * p.min_support as f32;
+    let min_votes = p.min_support as f32;
     for t in 0..k_bins {
         for b in 0..n_rho {
             let v = acc[t * n_rho + b];
@@ -575,13 +575,14 @@ pub(crate) fn find_lines(ctx: &Ctx) -> LinesResult {
     }
 
     // Ghosts: mostly in free space, or mostly behind a stronger line.
-    let mut ghost: Vec<bool> = uniq.iter().map(|c| free_fraction(ctx, c) > p.ghost_fraction).collect();
+    let in_free: Vec<bool> = uniq.iter().map(|c| free_fraction(ctx, c) > p.ghost_fraction).collect();
+    let mut ghost = in_free.clone();
     for _ in 0..6 {
         let next: Vec<bool> = uniq
             .iter()
             .enumerate()
             .map(|(i, c)| {
-                if free_fraction(ctx, c) > p.ghost_fraction {
+                if in_free[i] {
                     return true;
                 }
                 let occ: Vec<&Cand> = uniq
