@@ -1,5 +1,5 @@
 //! `chirpmap simulate`: scene → particle simulator (paper §II.B) → echoes →
-//! Algorithm 1 → highlights → scores (§V.A), with plots.
+//! Algorithm 1 → highlights → scores (§III.A), with plots.
 
 use crate::echoes_csv::write_echoes;
 use crate::inputs::load_scene;

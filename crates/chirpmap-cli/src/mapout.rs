@@ -66,7 +66,7 @@ pub fn write_map(out: &mut Staged, map: &MapResult, plot: &MapPlot, fmt: PlotFor
     };
     out.write("map.pgm", ros.pgm)?;
     out.write("map.yaml", ros.yaml)?;
-    let drawn: Vec<((f64, f64), (f64, f64), bool)> =
+    let drawn: Vec<crate::plot::Surface> =
         map.surfaces.iter().map(|s| ((s.p0.x, s.p0.y), (s.p1.x, s.p1.y), s.ambiguous)).collect();
     let style = match map.params.mapper {
         MapperKind::Paper => MapStyle::default(),

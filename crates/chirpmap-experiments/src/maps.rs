@@ -56,9 +56,9 @@ pub struct Row {
     pub n_highlights: usize,
     /// Surfaces found (evidence mapper).
     pub n_surfaces: usize,
-    /// Paper §V.A scores.
+    /// Paper §III.A scores.
     pub score_obstacle: Option<f64>,
-    /// Paper §V.A scores.
+    /// Paper §III.A scores.
     pub score_highlight: Option<f64>,
     /// Surface precision within 0.1 m.
     pub precision: f64,

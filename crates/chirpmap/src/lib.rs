@@ -5,7 +5,7 @@
 //! Listener hears the direct and the reflected sound at once; the frequency
 //! gap between them is a path-length difference Δd (paper Eq. 1–3); each Δd
 //! is an ellipse of possible reflection points (Eq. 4); ellipses accumulated
-//! on a grid reveal obstacles (Algorithm 1), which the scores of §V.A judge.
+//! on a grid reveal obstacles (Algorithm 1), which the scores of §III.A judge.
 //!
 //! Every step takes and returns plain data (slices and structs, no files):
 //!
@@ -13,7 +13,7 @@
 //! |---|---|
 //! | simulate a scene (particle model, §II.B), map and score it | [`simulate`] |
 //! | map echoes you measured (Algorithm 1, or the evidence mapper) | [`map_echoes`] |
-//! | score highlights against known obstacles (§V.A) | [`score`] |
+//! | score highlights against known obstacles (§III.A) | [`score`] |
 //! | score a map and its surfaces (F1, Chamfer, wall errors) | [`evaluate`] |
 //! | synthesize what the listeners record | [`synth`] |
 //! | range a recording: Δd per chirp (§IV) | [`prepare`] then [`range`] |

@@ -1,4 +1,4 @@
-//! Echoes → map → highlights → scores (paper Algorithm 1 and §V.A).
+//! Echoes → map → highlights → scores (paper Algorithm 1 and §III.A).
 
 use crate::error::{Error, Result};
 use chirpmap_core::grid::DEFAULT_MEMORY_CAP_BYTES;
@@ -60,7 +60,7 @@ impl MapResult {
     }
 }
 
-/// The paper's two scores (§V.A); `None` when the scene has no obstacles.
+/// The paper's two scores (§III.A); `None` when the scene has no obstacles.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct Scores {
     /// How well each obstacle is described by a highlight (false negatives).
@@ -69,7 +69,7 @@ pub struct Scores {
     pub score_highlight: Option<f64>,
 }
 
-/// Scores `highlights` against the true `obstacles` (paper §V.A).
+/// Scores `highlights` against the true `obstacles` (paper §III.A).
 pub fn score(obstacles: &[Obstacle], highlights: &[Point]) -> Scores {
     Scores {
         score_obstacle: score_obstacle(obstacles, highlights),
@@ -78,7 +78,7 @@ pub fn score(obstacles: &[Obstacle], highlights: &[Point]) -> Scores {
 }
 
 /// How well a map describes the true obstacles: the paper's two scores
-/// (§V.A) and the surface metrics of `chirpmap_core::metrics` (precision,
+/// (§III.A) and the surface metrics of `chirpmap_core::metrics` (precision,
 /// recall and F1 within 0.1 m, Chamfer distance, per wall the offset and
 /// angle of its best line).
 #[derive(Debug, Clone, PartialEq)]

@@ -359,7 +359,7 @@ pub struct RecordingEchoes {
 }
 
 /// Detects the chirps, then makes one measurement per period at the
-/// listener's pose (paper §V.A's sampling period on a real recording).
+/// listener's pose (paper §III.B's sampling period on a real recording).
 pub fn echoes_from_recording(prep: &Prepared, poses: &PoseTrack, params: &FrameParams) -> Result<RecordingEchoes> {
     let mut cache = chirpmap_audio::spectrum::FftCache::default();
     let dets = chirpmap_audio::detect_chirps(
