@@ -3,7 +3,7 @@
 //!
 //! A listener that moves during a chirp hears a different geometry in every
 //! frame, so instead of one estimate per chirp it makes one measurement per
-//! period (the paper's "sample rate", §V.A) at its pose at that time. The
+//! period (the paper's "sample rate", §III.B) at its pose at that time. The
 //! frame is aligned on the direct sound using the known poses: the direct
 //! sound heard at `t` left the speaker `D(t)/a` earlier.
 //!

@@ -1,6 +1,6 @@
 //! `summary.png` (or `.svg`): each configuration's mean scores with their
 //! 95 % intervals and, when the sweep names a baseline, the paired
-//! differences against it (paper §V.A scores; the intervals are Student-t,
+//! differences against it (paper §III.A scores; the intervals are Student-t,
 //! see `chirpmap_experiments::stats`).
 
 use crate::plot::{ensure_font, plot_err, tick_label, with_backend};

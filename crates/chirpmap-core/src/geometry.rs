@@ -188,7 +188,7 @@ pub enum Shape {
 
 impl Shape {
     /// Unsigned distance from `p` to the surface (boundary) of the shape:
-    /// the score of §V.A measures how far a highlight is from the surface,
+    /// the score of §III.A measures how far a highlight is from the surface,
     /// inside or outside.
     pub fn surface_distance(&self, p: Point) -> f64 {
         match self {

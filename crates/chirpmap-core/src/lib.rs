@@ -1,6 +1,6 @@
 //! Core of chirpmap: the chirp model (paper Eq. 1–3), planar geometry, the
 //! acoustic ellipse (Eq. 4), mappers (Algorithm 1), highlight extraction and
-//! the scores of §V.A. No I/O and no printing happens here.
+//! the scores of §III.A. No I/O and no printing happens here.
 
 pub mod chirp;
 pub mod echo;

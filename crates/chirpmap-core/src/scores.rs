@@ -1,4 +1,4 @@
-//! The evaluation metrics of paper §V.A (definitions in docs/architecture.md, "Scores").
+//! The evaluation metrics of paper §III.A (definitions in docs/architecture.md, "Scores").
 
 use crate::geometry::{Obstacle, Point};
 
