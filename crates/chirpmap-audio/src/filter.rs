@@ -24,7 +24,7 @@ pub struct Sos {
 /// bilinear transform with pre-warping: the same design as
 /// `scipy.signal.butter(order, cutoff_hz, 'highpass', fs=fs, output='sos')`.
 pub fn butter_highpass(order: usize, cutoff_hz: f64, sample_rate_hz: f64) -> Result<Sos, AudioError> {
-    if order == 0 || order % 2 != 0 || order > 16 {
+    if order == 0 || !order.is_multiple_of(2) || order > 16 {
         return Err(AudioError::InvalidParam {
             field: "order",
             reason: format!("need an even order 2..=16, got {order}"),
@@ -148,7 +148,7 @@ pub struct SavitzkyGolay {
 
 impl SavitzkyGolay {
     pub fn new(window: usize, polyorder: usize) -> Result<Self, AudioError> {
-        if window % 2 == 0 || window < 3 || polyorder >= window {
+        if window.is_multiple_of(2) || window < 3 || polyorder >= window {
             return Err(AudioError::InvalidParam {
                 field: "savgol",
                 reason: format!("window must be odd and >= 3 and polyorder < window, got {window}, {polyorder}"),

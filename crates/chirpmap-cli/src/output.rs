@@ -139,10 +139,12 @@ fn clean_debris(dir: &Path) {
             if abandoned {
                 std::fs::remove_dir_all(&path).ok();
             }
-        } else if let Some((_, pid)) = name.rsplit_once(".partial-") {
-            if pid.parse::<u32>().is_ok() && !process_alive(pid) && path.is_file() {
-                std::fs::remove_file(&path).ok();
-            }
+        } else if let Some((_, pid)) = name.rsplit_once(".partial-")
+            && pid.parse::<u32>().is_ok()
+            && !process_alive(pid)
+            && path.is_file()
+        {
+            std::fs::remove_file(&path).ok();
         }
     }
 }

@@ -85,19 +85,19 @@ fn scene_text() -> impl Strategy<Value = String> {
 }
 
 fn check(text: &str) {
-    if let Ok(scene) = Scene::from_toml_str(text) {
-        if scene.validate().is_ok() {
-            let w = scene.world.bounds;
-            assert!(w.iter().all(|v| v.is_finite() && v.abs() <= MAX_COORD_M), "{text}");
-            assert!(scene.world.speed_of_sound.is_finite() && scene.world.speed_of_sound > 0.0, "{text}");
-            assert!(scene.random_obstacles.count >= 1, "{text}");
-            for l in &scene.listeners {
-                assert!(l.speed.is_finite() && l.spin_rate.is_finite() && l.radius > 0.0, "{text}");
-            }
-            // A valid scene survives its own round trip.
-            let back = Scene::from_toml_str(&scene.to_toml_string()).unwrap();
-            back.validate().unwrap();
+    if let Ok(scene) = Scene::from_toml_str(text)
+        && scene.validate().is_ok()
+    {
+        let w = scene.world.bounds;
+        assert!(w.iter().all(|v| v.is_finite() && v.abs() <= MAX_COORD_M), "{text}");
+        assert!(scene.world.speed_of_sound.is_finite() && scene.world.speed_of_sound > 0.0, "{text}");
+        assert!(scene.random_obstacles.count >= 1, "{text}");
+        for l in &scene.listeners {
+            assert!(l.speed.is_finite() && l.spin_rate.is_finite() && l.radius > 0.0, "{text}");
         }
+        // A valid scene survives its own round trip.
+        let back = Scene::from_toml_str(&scene.to_toml_string()).unwrap();
+        back.validate().unwrap();
     }
 }
 

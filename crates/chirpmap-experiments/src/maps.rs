@@ -189,8 +189,7 @@ pub fn particle_cases(runs: u64) -> Result<Vec<Case>, String> {
     let mut out = Vec::new();
     for period_ms in [1.0, 10.0, 50.0] {
         for run in 0..runs {
-            let mut scene = Scene::default();
-            scene.run_index = run;
+            let mut scene = Scene { run_index: run, ..Scene::default() };
             scene.random_obstacles.count = 3;
             for l in &mut scene.listeners {
                 l.sampling.period_ms = Some(period_ms);

@@ -38,14 +38,14 @@ pub fn echoes_from_rows(data: &[f64], cols: usize, sigma_m: Option<&[f64]>) -> R
     if !(5..=9).contains(&cols) {
         return Err(format!("echoes must have 5 to 9 columns ({}), got {cols}", ECHO_COLUMNS.join(",")));
     }
-    if data.len() % cols != 0 {
+    if !data.len().is_multiple_of(cols) {
         return Err(format!("echoes: {} values do not make rows of {cols}", data.len()));
     }
     let n = data.len() / cols;
-    if let Some(s) = sigma_m {
-        if s.len() != n {
-            return Err(format!("sigma: {} values for {n} echoes", s.len()));
-        }
+    if let Some(s) = sigma_m
+        && s.len() != n
+    {
+        return Err(format!("sigma: {} values for {n} echoes", s.len()));
     }
     let mut echoes = Vec::with_capacity(n);
     for (i, row) in data.chunks_exact(cols).enumerate() {

@@ -137,10 +137,10 @@ pub fn analyse_spectra(r: &Resolved, spectra: Spectra) -> SimOutput {
                     let Some(dd) = r.sweep.delta_d_m(f_direct, p.f_hz, r.speed_of_sound_mps) else { continue };
                     // A reflection travelled further, so Δd > 0; a peak on the other
                     // side of the direct one cannot be an echo of this chirp.
-                    if dd > 0.0 {
-                        if let Ok(e) = Echo::new(r.source, pos, dd, p.intensity, t_s, l.id) {
-                            echoes.push(e);
-                        }
+                    if dd > 0.0
+                        && let Ok(e) = Echo::new(r.source, pos, dd, p.intensity, t_s, l.id)
+                    {
+                        echoes.push(e);
                     }
                 }
             }

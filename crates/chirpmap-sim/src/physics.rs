@@ -134,10 +134,10 @@ pub fn nearest_hit(obstacles: &[Obstacle], pos: Point, dir: Point, t_min: f64) -
             Shape::Circle(c) => circle_hit(c.center, c.radius_m, pos, dir, t_min),
             Shape::Polygon(p) => polygon_hit(p, pos, dir, t_min),
         };
-        if let Some(h) = h {
-            if best.is_none_or(|(b, _)| h.t < b.t) {
-                best = Some((h, i));
-            }
+        if let Some(h) = h
+            && best.is_none_or(|(b, _)| h.t < b.t)
+        {
+            best = Some((h, i));
         }
     }
     best

@@ -134,10 +134,10 @@ impl RangeGeometry {
                 self.speaker.x, self.speaker.y
             )));
         }
-        if let Some(n) = self.wall_normal {
-            if !(n.x.is_finite() && n.y.is_finite() && n.x.hypot(n.y) >= 1e-12) {
-                return Err(Error::Invalid("the wall normal must be finite and not zero".into()));
-            }
+        if let Some(n) = self.wall_normal
+            && !(n.x.is_finite() && n.y.is_finite() && n.x.hypot(n.y) >= 1e-12)
+        {
+            return Err(Error::Invalid("the wall normal must be finite and not zero".into()));
         }
         Ok(())
     }
