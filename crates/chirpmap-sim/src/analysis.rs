@@ -122,6 +122,10 @@ pub fn analyse_spectra(r: &Resolved, spectra: Spectra) -> SimOutput {
     let mut spectra = spectra.spectra.into_iter();
     let mut measurements = Vec::with_capacity(r.measurement_count());
     let mut echoes = Vec::new();
+    // The Δd uncertainty of a particle echo: the source emits one frequency
+    // per tick, so path lengths are resolved to a·tick (0.343 m at 1 ms);
+    // a uniform error over that step has σ = a·tick/√12 (issue 9, item 1).
+    let sigma_m = r.speed_of_sound_mps * r.tick_s / 12f64.sqrt();
     for l in &r.listeners {
         for (idx, (&tick, &pos)) in l.ticks.iter().zip(&l.positions).enumerate() {
             let Spectrum { bins, n_sensed, .. } = spectra.next().unwrap_or_default();
@@ -138,7 +142,8 @@ pub fn analyse_spectra(r: &Resolved, spectra: Spectra) -> SimOutput {
                     // A reflection travelled further, so Δd > 0; a peak on the other
                     // side of the direct one cannot be an echo of this chirp.
                     if dd > 0.0
-                        && let Ok(e) = Echo::new(r.source, pos, dd, p.intensity, t_s, l.id)
+                        && let Ok(e) =
+                            Echo::new(r.source, pos, dd, p.intensity, t_s, l.id).and_then(|e| e.with_sigma_m(sigma_m))
                     {
                         echoes.push(e);
                     }
