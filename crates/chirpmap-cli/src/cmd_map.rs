@@ -193,6 +193,7 @@ fn echoes_from_wav(args: &MapArgs, wav: &Path, chirp: ChirpSpec) -> Result<Vec<E
     let listener_id = u32::try_from(args.chirp.channel).context("--channel is too large")?;
     let poses = crate::poses_csv::read_poses(poses_path, listener_id)?;
     let (prep, _) = prepare_wav(wav, args.chirp.channel, &chirp)?;
+    poses.check_span(prep.duration_s).with_context(|| format!("poses for {}", wav.display()))?;
     let params = FrameParams {
         method: args.method,
         period_s: args.period_ms / 1000.0,

@@ -15,12 +15,11 @@
 //!
 //! Functions return bytes (for `output::Staged::write`) or write a given path.
 
-// The commands call these once the lead wires `--plot-format`/map data (issue 13).
-#![allow(dead_code)]
 
 use anyhow::{Context, Result, bail};
 use chirpmap_core::Grid;
 use std::fmt::Write as _;
+#[cfg(test)]
 use std::path::Path;
 
 /// `occupied_thresh` written into `map.yaml`: cells with occupancy above it
@@ -83,7 +82,8 @@ pub fn npy_bytes(grid: &Grid) -> Result<Vec<u8>> {
     Ok(out)
 }
 
-/// Writes [`npy_bytes`] to `path`.
+/// Writes [`npy_bytes`] to `path` (the commands stage bytes instead).
+#[cfg(test)]
 pub fn write_npy(path: &Path, grid: &Grid) -> Result<()> {
     std::fs::write(path, npy_bytes(grid)?).with_context(|| format!("cannot write {}", path.display()))
 }
@@ -150,7 +150,8 @@ pub fn ros_map(grid: &Grid, values: MapValues, image: &str) -> Result<RosMap> {
 }
 
 /// Writes `pgm_path` and, beside it, the YAML with the same stem
-/// (`map.pgm` → `map.yaml`).
+/// (`map.pgm` → `map.yaml`) (the commands stage bytes instead).
+#[cfg(test)]
 pub fn write_ros_map(pgm_path: &Path, grid: &Grid, values: MapValues) -> Result<()> {
     let image = pgm_path
         .file_name()

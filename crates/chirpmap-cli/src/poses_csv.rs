@@ -18,7 +18,6 @@ use std::path::Path;
 #[derive(Debug, Clone)]
 pub struct Poses {
     track: PoseTrack,
-    #[allow(dead_code)]
     name: String,
 }
 
@@ -32,12 +31,8 @@ impl std::ops::Deref for Poses {
 /// The largest ratio of the poses' span to the recording's length accepted.
 /// Poses may outlast a recording (a log started earlier), but times in
 /// milliseconds against a recording in seconds give a ratio near 1000.
-#[allow(dead_code)]
 pub const MAX_SPAN_RATIO: f64 = 100.0;
 
-// `check_span` is for `map --wav` (cmd_map.rs), which calls it once it has
-// the recording's length; until then only the tests call it.
-#[allow(dead_code)]
 impl Poses {
     /// Checks the poses' times against a recording of `recording_s` seconds:
     /// they must overlap `[0, recording_s]`, and their span must not exceed

@@ -9,7 +9,7 @@
 //! reflection left the source `Δt = τ(f_direct) − τ(f_reflected)` earlier,
 //! where `τ` is the sweep's inverse (frequency → emission time).
 
-use crate::error::CoreError;
+use crate::error::{CoreError, Num};
 
 /// A strictly monotonic frequency sweep of finite duration.
 pub trait Sweep: Send + Sync + std::fmt::Debug {
@@ -51,7 +51,7 @@ pub trait Sweep: Send + Sync + std::fmt::Debug {
 fn validate(f_start_hz: f64, f_end_hz: f64, duration_s: f64) -> Result<(), CoreError> {
     for (name, v) in [("f_start", f_start_hz), ("f_end", f_end_hz), ("duration", duration_s)] {
         if !v.is_finite() || v <= 0.0 {
-            return Err(CoreError::InvalidChirp(format!("{name} must be finite and > 0, got {v}")));
+            return Err(CoreError::InvalidChirp(format!("{name} must be finite and > 0, got {}", Num(v))));
         }
     }
     if f_start_hz == f_end_hz {

@@ -1,7 +1,7 @@
 //! The acoustic ellipse of paper Eq. 4: every point whose distances to the
 //! Source and the Listener sum to `D + Δd`.
 
-use crate::error::{CoreError, finite};
+use crate::error::{CoreError, Num, finite};
 use crate::geometry::Point;
 
 /// Largest coordinate or path difference accepted (m): far beyond any
@@ -41,8 +41,8 @@ impl Ellipse {
         }
         if [source.x, source.y, listener.x, listener.y, delta_d_m].iter().any(|v| v.abs() > MAX_EXTENT_M) {
             return Err(CoreError::InvalidGeometry(format!(
-                "coordinates and delta_d must be within ±{MAX_EXTENT_M:e} m (source ({}, {}), listener ({}, {}), delta_d {delta_d_m})",
-                source.x, source.y, listener.x, listener.y
+                "coordinates and delta_d must be within ±{MAX_EXTENT_M:e} m (source {source}, listener {listener}, delta_d {})",
+                Num(delta_d_m)
             )));
         }
         let d = listener - source;
