@@ -15,7 +15,6 @@
 //!
 //! Functions return bytes (for `output::Staged::write`) or write a given path.
 
-
 use anyhow::{Context, Result, bail};
 use chirpmap_core::Grid;
 use std::fmt::Write as _;

@@ -46,21 +46,19 @@ fn table(header: &'static str) -> impl Strategy<Value = Vec<u8>> {
         4 => proptest::collection::vec(cell(), n..=n),
         1 => proptest::collection::vec(cell(), 0..n + 2),
     ];
-    (proptest::collection::vec(row, 0..8), eol(), any::<bool>()).prop_map(
-        move |(rows, eol, bom)| {
-            let mut out = Vec::new();
-            if bom {
-                out.extend_from_slice(b"\xef\xbb\xbf");
-            }
-            out.extend_from_slice(header.as_bytes());
+    (proptest::collection::vec(row, 0..8), eol(), any::<bool>()).prop_map(move |(rows, eol, bom)| {
+        let mut out = Vec::new();
+        if bom {
+            out.extend_from_slice(b"\xef\xbb\xbf");
+        }
+        out.extend_from_slice(header.as_bytes());
+        out.extend_from_slice(eol);
+        for r in rows {
+            out.extend(r.join(&b","[..]));
             out.extend_from_slice(eol);
-            for r in rows {
-                out.extend(r.join(&b","[..]));
-                out.extend_from_slice(eol);
-            }
-            out
-        },
-    )
+        }
+        out
+    })
 }
 
 const ECHOES_HEADER: &str = "source_x,source_y,listener_x,listener_y,delta_d,weight,t,listener,sigma_m,note";

@@ -8,9 +8,9 @@
 //! every configuration (the paper relies on this).
 
 pub mod driver;
+pub mod error;
 pub mod maps;
 pub mod pipeline;
-pub mod error;
 pub mod presets;
 pub mod runner;
 pub mod runs;
