@@ -366,7 +366,14 @@ fn map_wav_poses_errors_are_specific() {
     std::fs::write(&shifted, s).unwrap();
     let o = map_wav(&wav, &shifted, &out, &[]);
     let e = stderr(&o);
-    assert!(!o.status.success() && e.contains("late.csv") && e.contains("100.000") && e.contains("rec.wav"), "{e}");
+    assert!(
+        !o.status.success()
+            && e.contains("late.csv")
+            && e.contains("100")
+            && e.contains("do not overlap")
+            && e.contains("rec.wav"),
+        "{e}"
+    );
     // A negative or fractional listener number is rejected, not read as 0.
     let text = std::fs::read_to_string(&poses).unwrap();
     for bad in ["-1", "0.5"] {
