@@ -16,6 +16,8 @@ import chirpmap
 from conftest import REPO, read_table, read_wav_f32, run_cli
 
 ECHO_COLS = list(chirpmap.ECHO_COLUMNS[:8])
+# Simulated (particle) echoes carry their Δd uncertainty in a ninth column.
+SIM_ECHO_COLS = list(chirpmap.ECHO_COLUMNS[:9])
 HIGHLIGHT_COLS = ["x", "y", "value"]
 THREE_CIRCLES = REPO / "examples" / "three-circles"
 
@@ -103,8 +105,8 @@ def test_simulate_default_scene_matches_cli(cli, tmp_path, seed):
     run_cli(cli, *args)
     run = chirpmap.simulate(seed=seed)
     d = tmp_path / "sim"
-    echoes = read_table(d / "echoes.csv", ECHO_COLS)
-    assert run.echoes.shape == echoes.shape and run.echoes.shape[1] == 8
+    echoes = read_table(d / "echoes.csv", SIM_ECHO_COLS)
+    assert run.echoes.shape == echoes.shape and run.echoes.shape[1] == 9
     assert np.array_equal(run.echoes, echoes)
     check_map_files(d, run)
     s = summary(d)
@@ -123,7 +125,7 @@ def test_scene_as_path_text_and_dict_match_cli(cli, tmp_path):
     path = tmp_path / "scene.toml"
     path.write_text(SCENE_TOML)
     run_cli(cli, "simulate", path, "--out", tmp_path / "sim")
-    cli_echoes = read_table(tmp_path / "sim" / "echoes.csv", ECHO_COLS)
+    cli_echoes = read_table(tmp_path / "sim" / "echoes.csv", SIM_ECHO_COLS)
     runs = [
         chirpmap.simulate(str(path)),
         chirpmap.simulate(path),
@@ -138,7 +140,7 @@ def test_scene_as_path_text_and_dict_match_cli(cli, tmp_path):
     # --seed overrides the scene's seed in both.
     run_cli(cli, "simulate", path, "--seed", 12, "--out", tmp_path / "sim12")
     run12 = chirpmap.simulate(SCENE_DICT, seed=12)
-    assert np.array_equal(run12.echoes, read_table(tmp_path / "sim12" / "echoes.csv", ECHO_COLS))
+    assert np.array_equal(run12.echoes, read_table(tmp_path / "sim12" / "echoes.csv", SIM_ECHO_COLS))
     assert run12.seed == 12
 
 

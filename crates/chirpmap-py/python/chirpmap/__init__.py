@@ -114,10 +114,11 @@ class Simulation(MapResult):
     Besides the fields of :class:`MapResult` (the map on the scene's world):
 
     Attributes:
-        echoes: ``(n, 8)`` float64 in the columns of echoes.csv
-            (:data:`ECHO_COLUMNS` without ``sigma_m``), the CLI's rows.
+        echoes: ``(n, 9)`` float64 in the columns of echoes.csv
+            (:data:`ECHO_COLUMNS`; ``sigma_m``, the Δd uncertainty of a
+            particle echo, last), the CLI's rows.
         scores: ``{"score_obstacle": float | None, "score_highlight":
-            float | None}`` (paper §V.A; None when the scene has no obstacles).
+            float | None}`` (paper §III.A; None when the scene has no obstacles).
         scene: the resolved scene as TOML (random obstacles listed, duration
             explicit): ``simulate(run.scene)`` replays the run exactly.
         seed: the master seed used.

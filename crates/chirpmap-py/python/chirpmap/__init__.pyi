@@ -27,7 +27,7 @@ class MapResult:
 
 @dataclass(frozen=True)
 class Simulation(MapResult):
-    """One simulated run: echoes (n, 8), its map, scores and resolved scene."""
+    """One simulated run: echoes (n, 9), its map, scores and resolved scene."""
 
     echoes: npt.NDArray[np.float64]
     scores: Dict[str, Optional[float]]
