@@ -5,7 +5,7 @@ stationary Source plays a frequency sweep, a moving Listener hears the direct
 and the reflected sound at once, each frequency gap is a path-length
 difference Δd (paper Eq. 1-3), each Δd an ellipse of possible reflection
 points (Eq. 4), and ellipses accumulated on a grid reveal obstacles
-(Algorithm 1), which the scores of §V.A judge.
+(Algorithm 1), which the scores of §III.A judge.
 
 This package wraps the Rust library (crate ``chirpmap``) that the
 ``chirpmap`` command-line tool runs, so the numbers are the CLI's, bit for
@@ -423,7 +423,7 @@ def echoes_from_recording(
     The echoes ``chirpmap map --wav REC.wav --poses P.csv --speaker X,Y``
     extracts (and writes to echoes.csv): every chirp is detected, then one
     measurement is made every ``period_ms`` at the listener's pose, linearly
-    interpolated between ``poses`` (paper §V.A's sampling period on a real
+    interpolated between ``poses`` (paper §III.B's sampling period on a real
     recording).
 
     Args:
