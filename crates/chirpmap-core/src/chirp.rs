@@ -71,6 +71,9 @@ pub struct LinearChirp {
 }
 
 impl LinearChirp {
+    /// A linear sweep from `f_start_hz` to `f_end_hz` (Hz) over `duration_s` (s).
+    /// Errors unless both frequencies are finite and > 0, they differ, and the
+    /// duration is finite and > 0.
     pub fn new(f_start_hz: f64, f_end_hz: f64, duration_s: f64) -> Result<Self, CoreError> {
         validate(f_start_hz, f_end_hz, duration_s)?;
         Ok(Self { f_start_hz, f_end_hz, duration_s })
@@ -120,6 +123,8 @@ pub struct ExponentialChirp {
 }
 
 impl ExponentialChirp {
+    /// An exponential sweep from `f_start_hz` to `f_end_hz` (Hz) over `duration_s` (s).
+    /// Errors under the same conditions as [`LinearChirp::new`].
     pub fn new(f_start_hz: f64, f_end_hz: f64, duration_s: f64) -> Result<Self, CoreError> {
         validate(f_start_hz, f_end_hz, duration_s)?;
         Ok(Self { f_start_hz, f_end_hz, duration_s })

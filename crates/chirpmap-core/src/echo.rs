@@ -7,7 +7,9 @@ use crate::geometry::Point;
 /// One reflection heard by one listener at one instant.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Echo {
+    /// Where the chirp was emitted (one focus of the ellipse), world frame (m).
     pub source: Point,
+    /// Where the echo was heard (the other focus), world frame (m).
     pub listener: Point,
     /// Path-length difference Δd (m).
     pub delta_d_m: f64,
@@ -52,6 +54,9 @@ impl Echo {
         Ok(Self { sigma_m: Some(sigma_m), ..self })
     }
 
+    /// The acoustic ellipse of this echo (paper Eq. 4): foci at source and
+    /// listener, path-length sum `D + Δd`. Errors if the foci coincide or Δd is
+    /// negative or not finite.
     pub fn ellipse(&self) -> Result<Ellipse, CoreError> {
         Ellipse::new(self.source, self.listener, self.delta_d_m)
     }

@@ -12,7 +12,9 @@ pub const MAX_EXTENT_M: f64 = 1e9;
 /// quantities the rasteriser needs precomputed.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Ellipse {
+    /// First focus: the Source (m).
     pub focus_a: Point,
+    /// Second focus: the Listener (m).
     pub focus_b: Point,
     /// Path-length difference Δd (m), ≥ 0.
     pub delta_d_m: f64,
@@ -22,8 +24,9 @@ pub struct Ellipse {
     pub semi_major_m: f64,
     /// Semi-minor axis b = sqrt(a² − (D/2)²); 0 when Δd = 0 (the segment).
     pub semi_minor_m: f64,
-    /// cos and sin of the major axis' angle from +x.
+    /// cos of the major axis' angle from +x.
     pub cos_t: f64,
+    /// sin of the major axis' angle from +x.
     pub sin_t: f64,
 }
 

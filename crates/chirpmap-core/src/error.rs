@@ -4,25 +4,59 @@ use thiserror::Error;
 /// the CLI can point the user at the offending line.
 #[derive(Debug, Error, Clone, PartialEq)]
 pub enum CoreError {
+    /// A number that must be finite was NaN or infinite.
     #[error("{field} must be finite, got {}", Num(*value))]
-    NotFinite { field: &'static str, value: f64 },
+    NotFinite {
+        /// Name of the offending field.
+        field: &'static str,
+        /// The value given.
+        value: f64,
+    },
+    /// A path-length difference Δd (m) was negative; an echo path is never
+    /// shorter than the direct path.
     #[error("delta_d must be >= 0 m, got {}", Num(*.0))]
     NegativeDeltaD(f64),
+    /// Source and listener at the same point: the ellipse of Eq. 4 degenerates.
     #[error("source and listener coincide at ({}, {}); the ellipse is undefined", Num(*x), Num(*y))]
-    CoincidentFoci { x: f64, y: f64 },
+    CoincidentFoci {
+        /// x of the shared point (m).
+        x: f64,
+        /// y of the shared point (m).
+        y: f64,
+    },
+    /// A chirp parameter (frequency, duration) is out of range.
     #[error("invalid chirp: {0}")]
     InvalidChirp(String),
+    /// A shape (circle, polygon) is degenerate or not finite.
     #[error("invalid geometry: {0}")]
     InvalidGeometry(String),
+    /// Grid bounds or cell size are invalid.
     #[error("invalid grid: {0}")]
     InvalidGrid(String),
+    /// The grid would need more memory than the allowed cap.
     #[error(
         "grid of {nx} x {ny} cells needs {bytes} bytes to map, more than the cap of {cap} bytes; \
          pass smaller --bounds or a larger --cell"
     )]
-    GridTooLarge { nx: usize, ny: usize, bytes: u128, cap: u128 },
+    GridTooLarge {
+        /// Cells along x.
+        nx: usize,
+        /// Cells along y.
+        ny: usize,
+        /// Bytes the map would need.
+        bytes: u128,
+        /// The cap (bytes).
+        cap: u128,
+    },
+    /// A mapping parameter is out of range.
     #[error("invalid mapping parameter {field}: {reason}")]
-    InvalidParam { field: &'static str, reason: String },
+    InvalidParam {
+        /// Name of the parameter.
+        field: &'static str,
+        /// What is wrong with it.
+        reason: String,
+    },
+    /// A scene file is inconsistent; the message names the field.
     #[error("invalid scene: {0}")]
     InvalidScene(String),
 }

@@ -28,14 +28,18 @@ use crate::geometry::{Circle, Obstacle, Point, Shape, point_segment_distance, sp
 /// A straight, two-sided reflecting wall from `a` to `b` (m).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct WallSegment {
+    /// Wall start (m).
     pub a: Point,
+    /// Wall end (m).
     pub b: Point,
 }
 
 /// Reflectors of an exact scene.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct ExactScene {
+    /// Straight walls (polygon edges).
     pub walls: Vec<WallSegment>,
+    /// Circular reflectors.
     pub circles: Vec<Circle>,
 }
 
@@ -56,7 +60,9 @@ impl ExactScene {
 /// One listener pose: where and when it heard.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Pose {
+    /// Time of the pose (s) from the start of the chirp.
     pub t_s: f64,
+    /// Listener position at that time (m).
     pub listener: Point,
 }
 
@@ -80,7 +86,9 @@ impl Default for ExactOptions {
 /// An exact reflection: Δd, its order, and where it bounced.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ExactReflection {
+    /// Index of the [`Pose`] that heard this reflection.
     pub pose_index: usize,
+    /// Path-length difference Δd (m): reflected path minus direct path.
     pub delta_d_m: f64,
     /// 1 (wall or circle) or 2 (wall–wall).
     pub order: u8,

@@ -7,20 +7,26 @@ use serde::{Deserialize, Serialize};
 /// A point or vector in the world frame (m).
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
 pub struct Point {
+    /// x (m).
     pub x: f64,
+    /// y (m).
     pub y: f64,
 }
 
 impl Point {
+    /// Point from its coordinates (m).
     pub const fn new(x: f64, y: f64) -> Self {
         Self { x, y }
     }
+    /// Euclidean distance to `o` (m).
     pub fn dist(self, o: Point) -> f64 {
         (self.x - o.x).hypot(self.y - o.y)
     }
+    /// Length of the vector (m).
     pub fn norm(self) -> f64 {
         self.x.hypot(self.y)
     }
+    /// Dot product.
     pub fn dot(self, o: Point) -> f64 {
         self.x * o.x + self.y * o.y
     }
@@ -28,6 +34,7 @@ impl Point {
     pub fn cross(self, o: Point) -> f64 {
         self.x * o.y - self.y * o.x
     }
+    /// True when both coordinates are finite.
     pub fn is_finite(self) -> bool {
         self.x.is_finite() && self.y.is_finite()
     }
@@ -36,6 +43,7 @@ impl Point {
         let (s, c) = angle_rad.sin_cos();
         Self::new(c, s)
     }
+    /// Unit vector in the same direction; NaN for the zero vector.
     pub fn normalized(self) -> Self {
         let n = self.norm();
         Self::new(self.x / n, self.y / n)
@@ -91,7 +99,9 @@ impl std::ops::Neg for Point {
 /// A ray `origin + t·dir`, `t ≥ 0`; `dir` need not be unit length.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Ray {
+    /// Start of the ray (m).
     pub origin: Point,
+    /// Direction; need not be unit length.
     pub dir: Point,
 }
 
@@ -99,19 +109,26 @@ pub struct Ray {
 /// unit normal of the surface there.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Hit {
+    /// Ray parameter: the hit is at `origin + t·dir`.
     pub t: f64,
+    /// Hit point (m).
     pub point: Point,
+    /// Outward unit normal of the surface at the hit.
     pub normal: Point,
 }
 
 /// A circle (m).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Circle {
+    /// Centre (m).
     pub center: Point,
+    /// Radius (m), > 0.
     pub radius_m: f64,
 }
 
 impl Circle {
+    /// Circle from centre and radius; errors unless both are finite and the
+    /// radius is > 0.
     pub fn new(center: Point, radius_m: f64) -> Result<Self, CoreError> {
         if !center.is_finite() || !radius_m.is_finite() || radius_m <= 0.0 {
             return Err(CoreError::InvalidGeometry(format!(
@@ -130,6 +147,8 @@ pub struct Polygon {
 }
 
 impl Polygon {
+    /// Polygon from its vertices; errors with fewer than 3, any non-finite
+    /// vertex, or zero area.
     pub fn new(vertices: Vec<Point>) -> Result<Self, CoreError> {
         if vertices.len() < 3 {
             return Err(CoreError::InvalidGeometry(format!(
@@ -146,13 +165,16 @@ impl Polygon {
         }
         Ok(poly)
     }
+    /// The vertices in the order given.
     pub fn vertices(&self) -> &[Point] {
         &self.vertices
     }
+    /// Edges `(v[i], v[i+1])`, including the closing edge back to the first vertex.
     pub fn edges(&self) -> impl Iterator<Item = (Point, Point)> + '_ {
         let n = self.vertices.len();
         (0..n).map(move |i| (self.vertices[i], self.vertices[(i + 1) % n]))
     }
+    /// Signed area (m², shoelace formula): positive for counter-clockwise winding.
     pub fn signed_area(&self) -> f64 {
         0.5 * self.edges().map(|(a, b)| a.cross(b)).sum::<f64>()
     }
@@ -182,7 +204,9 @@ pub fn point_segment_distance(p: Point, a: Point, b: Point) -> f64 {
 /// Shape of an obstacle.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Shape {
+    /// A circular obstacle (the paper's random obstacles).
     Circle(Circle),
+    /// A polygonal obstacle (walls, rooms).
     Polygon(Polygon),
 }
 
@@ -199,6 +223,7 @@ impl Shape {
         }
     }
 
+    /// True when `p` lies inside or on the shape.
     pub fn contains(&self, p: Point) -> bool {
         match self {
             Shape::Circle(c) => p.dist(c.center) <= c.radius_m,
@@ -281,6 +306,7 @@ impl Shape {
 /// An obstacle: a shape plus its acoustic properties (paper §II.B).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Obstacle {
+    /// Geometry of the obstacle.
     pub shape: Shape,
     /// Fraction in [0, 1]: outgoing angle perturbed by ± roughness·90°.
     pub roughness: f64,
@@ -289,6 +315,8 @@ pub struct Obstacle {
 }
 
 impl Obstacle {
+    /// Unsigned distance from `p` to the obstacle's surface (m); see
+    /// [`Shape::surface_distance`].
     pub fn surface_distance(&self, p: Point) -> f64 {
         self.shape.surface_distance(p)
     }

@@ -16,10 +16,15 @@ pub const WORKING_COPIES: u128 = 6;
 /// `[x_min + i·cell, x_min + (i+1)·cell) × [y_min + j·cell, y_min + (j+1)·cell)`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct GridSpec {
+    /// Left edge of the grid (m).
     pub x_min_m: f64,
+    /// Bottom edge of the grid (m).
     pub y_min_m: f64,
+    /// Side of a square cell (m).
     pub cell_m: f64,
+    /// Number of cells along x.
     pub nx: usize,
+    /// Number of cells along y.
     pub ny: usize,
 }
 
@@ -46,15 +51,19 @@ impl GridSpec {
         Ok(Self { x_min_m: x_min, y_min_m: y_min, cell_m, nx: nx_f as usize, ny: ny_f as usize })
     }
 
+    /// Number of cells, `nx·ny`.
     pub fn len(&self) -> usize {
         self.nx * self.ny
     }
+    /// True when the grid has no cells.
     pub fn is_empty(&self) -> bool {
         self.len() == 0
     }
+    /// Right edge of the grid (m).
     pub fn x_max_m(&self) -> f64 {
         self.x_min_m + self.nx as f64 * self.cell_m
     }
+    /// Top edge of the grid (m).
     pub fn y_max_m(&self) -> f64 {
         self.y_min_m + self.ny as f64 * self.cell_m
     }
@@ -73,17 +82,22 @@ impl GridSpec {
 /// Row-major grid of values (`j·nx + i`).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Grid {
+    /// Placement of the grid.
     pub spec: GridSpec,
+    /// Cell values, row-major: index `j·nx + i`.
     pub data: Vec<f64>,
 }
 
 impl Grid {
+    /// Grid of `spec` with every cell 0.
     pub fn zeros(spec: GridSpec) -> Self {
         Self { spec, data: vec![0.0; spec.len()] }
     }
+    /// Value of cell `(i, j)`; panics when out of range.
     pub fn get(&self, i: usize, j: usize) -> f64 {
         self.data[j * self.spec.nx + i]
     }
+    /// Largest cell value, or 0 when every cell is ≤ 0 or the grid is empty.
     pub fn max(&self) -> f64 {
         self.data.iter().copied().fold(0.0, f64::max)
     }

@@ -2,9 +2,12 @@
 //! acoustic ellipse (Eq. 4), mappers (Algorithm 1), highlight extraction and
 //! the scores of §III.A. No I/O and no printing happens here.
 
+#![warn(missing_docs)]
+
 pub mod chirp;
 pub mod echo;
 pub mod ellipse;
+/// Error type of the core library.
 pub mod error;
 pub mod evidence;
 pub mod exact;

@@ -66,6 +66,7 @@ impl Default for MappingParams {
 pub const MAX_ELLIPSE_POINTS: u32 = 100_000;
 
 impl MappingParams {
+    /// Checks every parameter's range; the error names the first bad field.
     pub fn validate(&self) -> Result<(), CoreError> {
         let bad = |field: &'static str, reason: &str| Err(CoreError::InvalidParam { field, reason: reason.into() });
         if !(self.cell.is_finite() && self.cell > 0.0) {
@@ -99,7 +100,9 @@ impl MappingParams {
 /// A likely obstacle location: the centre of a locally maximal cell.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Highlight {
+    /// Centre of the locally maximal cell (m).
     pub pos: Point,
+    /// Accumulated value of that cell.
     pub value: f64,
 }
 
@@ -133,6 +136,8 @@ pub struct AccumulationMapper {
 }
 
 impl AccumulationMapper {
+    /// Mapper on the grid `spec`; errors when `params` fail
+    /// [`MappingParams::validate`].
     pub fn new(spec: GridSpec, params: MappingParams) -> Result<Self, CoreError> {
         params.validate()?;
         Ok(Self { grid: Grid::zeros(spec), params, cells_updated: 0, max_cell_bound: 0.0 })

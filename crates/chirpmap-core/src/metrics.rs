@@ -29,10 +29,15 @@ use crate::geometry::{Obstacle, Point, Shape, point_segment_distance};
 /// Parameters of [`surface_metrics`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MetricParams {
+    /// Distance (m) within which a sample counts as matched.
     pub tol_m: f64,
+    /// Spacing (m) of the samples along lines and true boundaries.
     pub sample_m: f64,
+    /// Radius (m) around observed points within which a true sample is observable.
     pub observe_radius_m: f64,
+    /// Shortest polygon edge (m) scored as a wall.
     pub min_wall_m: f64,
+    /// Largest angle (°) between a wall and a line matched to it.
     pub max_angle_deg: f64,
 }
 
@@ -45,20 +50,28 @@ impl Default for MetricParams {
 /// How well the best reported line matches one true wall.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct WallMatch {
+    /// Wall start (m).
     pub a: Point,
+    /// Wall end (m).
     pub b: Point,
     /// `None` when no reported line matches.
     pub offset_m: Option<f64>,
+    /// Angle (°, 0–90) between the wall and its best line; `None` when no line matches.
     pub angle_deg: Option<f64>,
 }
 
 /// Result of [`surface_metrics`].
 #[derive(Debug, Clone, PartialEq)]
 pub struct SurfaceMetrics {
+    /// Fraction of reported samples within `tol_m` of a true surface.
     pub precision: f64,
+    /// Fraction of observable true samples within `tol_m` of a reported sample.
     pub recall: f64,
+    /// Harmonic mean of precision and recall (0 when both are 0).
     pub f1: f64,
+    /// Symmetric Chamfer distance (m); `None` when either side is empty.
     pub chamfer_m: Option<f64>,
+    /// Per true wall, the match of its best line.
     pub walls: Vec<WallMatch>,
 }
 

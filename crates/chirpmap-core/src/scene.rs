@@ -34,6 +34,9 @@ fn exact_points_opt<'de, D: Deserializer<'de>>(d: D) -> Result<Option<Vec<[f64; 
         .map(Some)
 }
 
+/// A complete simulation scene as read from a TOML file: world, chirp,
+/// source, particles, obstacles, listeners and mapping parameters. Defaults
+/// follow the paper's setup (§III).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct Scene {
@@ -46,14 +49,21 @@ pub struct Scene {
     /// the time sound needs to cross the world from the source to its farthest corner.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub duration_s: Option<f64>,
+    /// Speed of sound and bounds.
     pub world: World,
+    /// The emitted sweep.
     pub chirp: ChirpSpec,
+    /// Where the source stands.
     pub source: SourceSpec,
+    /// Particle emission settings (paper §II.B).
     pub particles: ParticleSpec,
     /// Explicit obstacles; when empty, `random_obstacles` generates them.
     pub obstacles: Vec<ObstacleSpec>,
+    /// Random circular obstacles, used when `obstacles` is empty.
     pub random_obstacles: RandomObstacles,
+    /// The moving listeners.
     pub listeners: Vec<ListenerSpec>,
+    /// Parameters of the mappers (Algorithm 1).
     pub mapping: MappingParams,
 }
 
@@ -75,6 +85,7 @@ impl Default for Scene {
     }
 }
 
+/// The simulated world: speed of sound and extent.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct World {
@@ -91,21 +102,28 @@ impl Default for World {
     }
 }
 
+/// Shape of the frequency sweep.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "lowercase")]
 pub enum SweepKind {
+    /// Linear in time, [`LinearChirp`] (paper Eq. 1).
     #[default]
     Linear,
+    /// Exponential in time, [`ExponentialChirp`].
     Exponential,
 }
 
+/// The emitted chirp, as written in a scene file.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ChirpSpec {
+    /// Frequency at the start of the sweep (Hz). Paper: 10 kHz.
     pub f_start: f64,
+    /// Frequency at the end of the sweep (Hz). Paper: 200 Hz.
     pub f_end: f64,
     /// Sweep duration T (s).
     pub duration: f64,
+    /// Linear or exponential sweep.
     pub kind: SweepKind,
 }
 
@@ -116,6 +134,7 @@ impl Default for ChirpSpec {
 }
 
 impl ChirpSpec {
+    /// The sweep this spec describes; errors on invalid frequencies or duration.
     pub fn build(&self) -> Result<Box<dyn Sweep>, CoreError> {
         Ok(match self.kind {
             SweepKind::Linear => Box::new(LinearChirp::new(self.f_start, self.f_end, self.duration)?),
@@ -124,9 +143,11 @@ impl ChirpSpec {
     }
 }
 
+/// The sound source, as written in a scene file.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SourceSpec {
+    /// Source position `[x, y]` (m).
     #[serde(deserialize_with = "exact_array")]
     pub position: [f64; 2],
 }
@@ -137,6 +158,7 @@ impl Default for SourceSpec {
     }
 }
 
+/// How sound is discretised into particles (paper §II.B).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ParticleSpec {
@@ -160,14 +182,19 @@ impl Default for ParticleSpec {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ObstacleSpec {
+    /// Circle centre `[x, y]` (m); give with `radius`.
     #[serde(default, skip_serializing_if = "Option::is_none", deserialize_with = "exact_array_opt")]
     pub center: Option<[f64; 2]>,
+    /// Circle radius (m); give with `center`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub radius: Option<f64>,
+    /// Polygon vertices `[[x, y], …]` (m), in order; instead of a circle.
     #[serde(default, skip_serializing_if = "Option::is_none", deserialize_with = "exact_points_opt")]
     pub vertices: Option<Vec<[f64; 2]>>,
+    /// Fraction in [0, 1]: outgoing angle perturbed by ± roughness·90°. Default 0.1.
     #[serde(default = "default_roughness")]
     pub roughness: f64,
+    /// Fraction in [0, 1] of loudness lost per bounce. Default 0.2.
     #[serde(default = "default_absorption")]
     pub absorption: f64,
 }
@@ -180,6 +207,8 @@ fn default_absorption() -> f64 {
 }
 
 impl ObstacleSpec {
+    /// A circle spec at `center` with radius `radius_m` (m) and the default
+    /// roughness and absorption.
     pub fn circle(center: Point, radius_m: f64) -> Self {
         Self {
             center: Some([center.x, center.y]),
@@ -190,6 +219,7 @@ impl ObstacleSpec {
         }
     }
 
+    /// The obstacle this spec describes; `index` names it in errors.
     pub fn build(&self, index: usize) -> Result<Obstacle, CoreError> {
         let ctx = |msg: String| CoreError::InvalidScene(format!("obstacles[{index}]: {msg}"));
         for (name, v) in [("roughness", self.roughness), ("absorption", self.absorption)] {
@@ -210,9 +240,11 @@ impl ObstacleSpec {
     }
 }
 
+/// Randomly placed circular obstacles (paper §III: three circles).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct RandomObstacles {
+    /// How many obstacles to draw. Paper: 3.
     pub count: u32,
     /// Diameter range (m). Paper: U(5, 10).
     #[serde(deserialize_with = "exact_array")]
@@ -220,7 +252,9 @@ pub struct RandomObstacles {
     /// Region for centres `[xmin, ymin, xmax, ymax]` (m).
     #[serde(deserialize_with = "exact_array")]
     pub region: [f64; 4],
+    /// Roughness of every drawn obstacle, in [0, 1].
     pub roughness: f64,
+    /// Absorption of every drawn obstacle, in [0, 1].
     pub absorption: f64,
 }
 
@@ -380,11 +414,14 @@ impl Default for Sampling {
     }
 }
 
+/// One moving listener, as written in a scene file.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ListenerSpec {
+    /// Start position `[x, y]` (m).
     #[serde(deserialize_with = "exact_array")]
     pub start: [f64; 2],
+    /// Initial heading (°), counter-clockwise from +x.
     pub heading_deg: f64,
     /// m/s. Paper: 10.
     pub speed: f64,
@@ -392,6 +429,7 @@ pub struct ListenerSpec {
     pub spin_rate: f64,
     /// Detection radius (m).
     pub radius: f64,
+    /// When the listener records.
     pub sampling: Sampling,
 }
 
@@ -586,10 +624,12 @@ impl Scene {
         Ok(())
     }
 
+    /// The scene as pretty TOML; a comment line if serialisation fails.
     pub fn to_toml_string(&self) -> String {
         toml::to_string_pretty(self).unwrap_or_else(|e| format!("# could not serialise scene: {e}\n"))
     }
 
+    /// Source position as a [`Point`] (m).
     pub fn source_position(&self) -> Point {
         Point::new(self.source.position[0], self.source.position[1])
     }

@@ -183,6 +183,7 @@ pub enum SurfaceKind {
 /// One reflecting surface found by the evidence mapper.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Surface {
+    /// Whether this is a wall segment or a compact point reflector.
     pub kind: SurfaceKind,
     /// Segment start (line) or the point (point), world frame (m).
     pub p0: Point,
