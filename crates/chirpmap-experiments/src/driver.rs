@@ -13,11 +13,13 @@ use std::path::Path;
 /// What a sweep (or merge) left in its directory.
 #[derive(Debug)]
 pub struct Outcome {
+    /// All rows now in the directory (earlier and new runs).
     pub rows: Vec<RunRow>,
     /// Runs of this shard already present before this invocation.
     pub resumed: usize,
     /// Runs executed now.
     pub executed: usize,
+    /// Per-configuration summaries of `rows`.
     pub summaries: Vec<ConfigSummary>,
 }
 
@@ -138,6 +140,7 @@ fn check_merge_out(inputs: &[&Path], out: &Path, sweep_text: &str) -> Result<(),
 /// Problems found while merging.
 #[derive(Debug, Default)]
 pub struct MergeReport {
+    /// Jobs of the plan found in no input.
     pub missing: Vec<Job>,
     /// Jobs present in more than one input (identical results are kept once).
     pub duplicated: Vec<Job>,

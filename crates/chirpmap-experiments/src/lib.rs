@@ -7,6 +7,8 @@
 //! neither thread count nor shard split, and run `i` sees the same obstacles in
 //! every configuration (the paper relies on this).
 
+#![warn(missing_docs)]
+
 pub mod driver;
 pub mod error;
 pub mod maps;

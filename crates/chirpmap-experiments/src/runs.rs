@@ -10,22 +10,34 @@ use std::path::{Path, PathBuf};
 /// What one run measures.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RunMetrics {
+    /// Score of the obstacle map against the scene's true obstacles; `None` when undefined
+    /// (see the core crate's scoring).
     pub score_obstacle: Option<f64>,
+    /// Score of the highlight map against the true obstacles; `None` when undefined.
     pub score_highlight: Option<f64>,
+    /// Number of highlights in the map.
     pub n_highlights: usize,
+    /// Number of echoes the listeners detected.
     pub n_echoes: usize,
 }
 
 /// One row of runs.csv.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RunRow {
+    /// Which configuration and run this row belongs to.
     pub job: Job,
+    /// Label of each parameter's value, in the sweep's parameter order.
     pub labels: Vec<String>,
+    /// Seed recorded for the run (the master seed; the run index selects the stream).
     pub seed: u64,
+    /// What the run measured.
     pub metrics: RunMetrics,
+    /// Wall-clock time of the run, in seconds.
     pub elapsed_s: f64,
 }
 
+/// Column names of runs.csv for `plan`: `config`, one column per parameter, then the
+/// run, seed, metric and timing columns.
 pub fn header(plan: &Plan) -> Vec<String> {
     let mut h = vec!["config".to_string()];
     h.extend(plan.def.params.iter().map(|p| p.name.clone()));
@@ -139,13 +151,18 @@ pub fn write_sorted(path: &Path, plan: &Plan, rows: &[RunRow]) -> Result<(), Exp
 /// already holds.
 #[derive(Debug)]
 pub struct RunsFile {
+    /// Location of the runs.csv file.
     pub path: PathBuf,
     file: std::fs::File,
+    /// Rows already in the file, keyed by job (the runs a resume skips).
     pub done: BTreeMap<Job, RunRow>,
 }
 
+/// Name of the sweep definition copied into an output directory.
 pub const SWEEP_FILE: &str = "sweep.toml";
+/// Name of the file recording which shard (`I/N`) a directory holds.
 pub const SHARD_FILE: &str = "shard.txt";
+/// Name of the per-run results file.
 pub const RUNS_FILE: &str = "runs.csv";
 
 impl RunsFile {

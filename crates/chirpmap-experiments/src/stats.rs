@@ -16,13 +16,16 @@ pub fn t975(nu: usize) -> f64 {
 /// Mean with its 95 % confidence interval.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MeanCi {
+    /// Number of values.
     pub n: usize,
+    /// Sample mean (NaN with no values).
     pub mean: f64,
     /// Half-width of the interval (NaN with fewer than 2 values).
     pub half_width: f64,
 }
 
 impl MeanCi {
+    /// Mean and Student-t 95 % interval of `values` (sample standard deviation).
     pub fn of(values: &[f64]) -> Self {
         let n = values.len();
         if n == 0 {
@@ -35,9 +38,11 @@ impl MeanCi {
         let var = values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1) as f64;
         Self { n, mean, half_width: t975(n - 1) * (var / n as f64).sqrt() }
     }
+    /// Lower end of the interval.
     pub fn low(&self) -> f64 {
         self.mean - self.half_width
     }
+    /// Upper end of the interval.
     pub fn high(&self) -> f64 {
         self.mean + self.half_width
     }

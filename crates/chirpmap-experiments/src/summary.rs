@@ -10,17 +10,25 @@ use std::fmt::Write as _;
 /// Summary of one configuration.
 #[derive(Debug, Clone)]
 pub struct ConfigSummary {
+    /// Configuration index in the plan.
     pub config: usize,
+    /// Label of each parameter's value.
     pub labels: Vec<String>,
+    /// Number of runs summarised.
     pub runs: usize,
+    /// Mean obstacle score with its 95 % interval (runs with a defined score).
     pub score_obstacle: MeanCi,
+    /// Mean highlight score with its 95 % interval (runs with a defined score).
     pub score_highlight: MeanCi,
     /// Paired difference (this − baseline, same run index), if the sweep has a
     /// baseline and this is not it.
     pub diff_obstacle: Option<MeanCi>,
+    /// Paired difference of the highlight score, like `diff_obstacle`.
     pub diff_highlight: Option<MeanCi>,
 }
 
+/// Summarises `rows` per configuration of `plan`, with paired differences against the
+/// baseline value when a parameter declares one.
 pub fn summarise(plan: &Plan, rows: &[RunRow]) -> Vec<ConfigSummary> {
     let mut by_config: BTreeMap<usize, BTreeMap<u64, &RunRow>> = BTreeMap::new();
     for r in rows {
@@ -70,6 +78,8 @@ fn has_diffs(s: &[ConfigSummary]) -> bool {
     s.iter().any(|c| c.diff_obstacle.is_some())
 }
 
+/// summary.csv: one line per configuration with means, interval bounds and, if any,
+/// paired differences.
 pub fn summary_csv(plan: &Plan, s: &[ConfigSummary]) -> String {
     let mut head: Vec<String> = vec!["config".into()];
     head.extend(plan.def.params.iter().map(|p| p.name.clone()));

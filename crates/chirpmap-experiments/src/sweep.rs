@@ -11,6 +11,7 @@ use serde::{Deserialize, Serialize};
 pub struct SweepDef {
     /// Name, used in titles.
     pub name: String,
+    /// Free text describing the sweep.
     #[serde(default)]
     pub description: String,
     /// Runs per configuration.
@@ -45,6 +46,7 @@ pub struct Param {
 }
 
 impl Param {
+    /// Label of value `k`: the given label, else the value itself (strings unquoted).
     pub fn label(&self, k: usize) -> String {
         self.labels.get(k).cloned().unwrap_or_else(|| match &self.values[k] {
             toml::Value::String(s) => s.clone(),
@@ -56,17 +58,22 @@ impl Param {
 /// One configuration: a resolved scene and the label of each parameter value.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Config {
+    /// Position in the plan (the `config` column of runs.csv).
     pub index: usize,
     /// Index into each parameter's values.
     pub choice: Vec<usize>,
+    /// Label of each parameter's chosen value.
     pub labels: Vec<String>,
+    /// The base scene with the chosen values applied.
     pub scene: Scene,
 }
 
 /// One run of one configuration.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub struct Job {
+    /// Configuration index.
     pub config: usize,
+    /// Run index, also the random stream of the master seed.
     pub run: u64,
 }
 
@@ -74,13 +81,17 @@ pub struct Job {
 /// the plan is `I` modulo `N`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Shard {
+    /// Shard index, 0-based.
     pub index: usize,
+    /// Number of shards.
     pub count: usize,
 }
 
 impl Shard {
+    /// The whole sweep as one shard.
     pub const ALL: Shard = Shard { index: 0, count: 1 };
 
+    /// Parses `I/N`, requiring `0 <= I < N`.
     pub fn parse(s: &str) -> Result<Self, ExperimentError> {
         let bad = || ExperimentError::InvalidSweep(format!("shard {s:?} must look like I/N with 0 <= I < N"));
         let (i, n) = s.split_once('/').ok_or_else(bad)?;
@@ -96,7 +107,9 @@ impl Shard {
 /// An expanded sweep: every configuration validated before any work starts.
 #[derive(Debug, Clone)]
 pub struct Plan {
+    /// The sweep as defined.
     pub def: SweepDef,
+    /// Every configuration of the cartesian product, in order (first parameter slowest).
     pub configs: Vec<Config>,
 }
 
@@ -107,6 +120,7 @@ impl SweepDef {
         toml::from_str(text).map_err(|e| ExperimentError::InvalidSweep(chirpmap_core::error::toml_error(text, &e)))
     }
 
+    /// Serialises the sweep back to TOML (written into the output directory).
     pub fn to_toml_string(&self) -> String {
         toml::to_string_pretty(self).unwrap_or_else(|e| format!("# cannot serialise sweep: {e}\n"))
     }
