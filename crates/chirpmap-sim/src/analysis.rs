@@ -18,30 +18,39 @@ pub struct Peak {
     pub intensity: f64,
     /// Lower edge of the lowest bin and upper edge of the highest bin (Hz).
     pub lo_hz: f64,
+    /// Upper edge of the highest bin (Hz).
     pub hi_hz: f64,
 }
 
 /// One listener measurement: its spectrum, peaks and which peak is direct.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Measurement {
+    /// Id of the listener that measured (its index in the scene).
     pub listener_id: u32,
+    /// Simulation tick of the measurement.
     pub tick: u64,
+    /// Time of the measurement (s) from the start of the chirp.
     pub t_s: f64,
+    /// Listener position at that time, world frame (m).
     pub position: Point,
     /// Occupied bins: (bin index, summed loudness); bin i covers `[i, i+1)·BIN_HZ`.
     pub bins: Vec<(i64, f64)>,
+    /// Peaks of the spectrum, one per arrival (see [`Peak`]).
     pub peaks: Vec<Peak>,
     /// Index into `peaks` of the direct arrival, when heard.
     pub direct: Option<usize>,
     /// Predicted direct frequency f(t − D/a) (Doppler-shifted when enabled).
     pub predicted_direct_hz: Option<f64>,
+    /// Number of particles sensed in this measurement.
     pub n_sensed: u32,
 }
 
 /// Everything a simulation produces.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SimOutput {
+    /// One entry per listener measurement, in global measurement order.
     pub measurements: Vec<Measurement>,
+    /// Every non-direct peak turned into an echo (an acoustic ellipse, paper Eq. 4).
     pub echoes: Vec<Echo>,
 }
 
@@ -93,6 +102,7 @@ pub struct Spectra {
 }
 
 impl Spectra {
+    /// Empty spectra, one per measurement of `r`.
     pub fn new(r: &Resolved) -> Self {
         Self { spectra: vec![Spectrum::default(); r.measurement_count()] }
     }

@@ -19,7 +19,10 @@
 //!
 //! No I/O and no printing happens here.
 
+#![warn(missing_docs)]
+
 pub mod analysis;
+/// Error type of the simulator.
 pub mod error;
 pub mod fast;
 pub mod oracle;
@@ -44,6 +47,7 @@ pub struct Sensed {
     pub particle: u64,
     /// Heard frequency (Hz): emission frequency, Doppler-shifted if enabled.
     pub freq_hz: f64,
+    /// Loudness relative to emission (1 at emission), after absorption at each bounce.
     pub loudness: f64,
     /// Distance from the listener's centre (m), to judge boundary cases.
     pub dist_m: f64,

@@ -38,13 +38,17 @@ const PLACEMENT_TRIES: u32 = 10_000;
 /// One listener's trajectory and measurement instants.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ListenerPlan {
+    /// Listener id: its index in the scene's `listeners`.
     pub id: u32,
+    /// Known motion of the listener.
     pub trajectory: Trajectory,
+    /// Detection radius (m): particles within it are sensed.
     pub radius_m: f64,
     /// Measurement ticks, strictly increasing.
     pub ticks: Vec<u64>,
     /// Listener position and velocity at each measurement tick.
     pub positions: Vec<Point>,
+    /// Listener velocity (m/s) at each measurement tick, for Doppler.
     pub velocities: Vec<Point>,
     /// Global index of this listener's first measurement.
     pub first_measurement: usize,
@@ -57,12 +61,19 @@ pub struct ListenerPlan {
 pub struct Resolved {
     /// The fully resolved scene (random obstacles listed, duration explicit).
     pub scene: Scene,
+    /// Source position (m).
     pub source: Point,
+    /// Speed of sound a (m/s).
     pub speed_of_sound_mps: f64,
+    /// World bounds `[xmin, ymin, xmax, ymax]` (m); particles leaving them are dropped.
     pub world: [f64; 4],
+    /// The emitted sweep.
     pub sweep: Box<dyn Sweep>,
+    /// All obstacles, random ones included.
     pub obstacles: Vec<Obstacle>,
+    /// Particles emitted per tick.
     pub per_tick: u32,
+    /// Tick length (s).
     pub tick_s: f64,
     /// Path length a particle covers per tick (m).
     pub step_m: f64,
@@ -78,9 +89,13 @@ pub struct Resolved {
     pub emit_rot: Vec<(f64, f64)>,
     /// Unit directions of one tick before the offset ([`crate::physics::direction_table`]).
     pub dir_table: Vec<Point>,
+    /// Key of the counter-based generator drawn at bounces ([`crate::rng::RunSeeds::bounce_key`]).
     pub bounce_key: u64,
+    /// Particles quieter than this (relative to emission) are dropped.
     pub min_loudness: f64,
+    /// Whether heard frequencies are Doppler-shifted by the listener's motion.
     pub doppler: bool,
+    /// Per listener, its trajectory and measurement instants.
     pub listeners: Vec<ListenerPlan>,
     /// Bins further apart than this are separate peaks: one more than the
     /// largest bin step between consecutive ticks' frequencies (the particle
@@ -485,6 +500,7 @@ fn random_obstacles(
 }
 
 impl Resolved {
+    /// Total number of measurements over all listeners.
     pub fn measurement_count(&self) -> usize {
         self.listeners.iter().map(|l| l.ticks.len()).sum()
     }

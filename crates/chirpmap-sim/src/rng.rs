@@ -13,14 +13,18 @@ use rand_chacha::ChaCha8Rng;
 /// Sub-seeds of one run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct RunSeeds {
+    /// Seeds the placement of random obstacles.
     pub obstacles: u64,
+    /// Seeds the per-tick random angular offsets of emission.
     pub emission: u64,
     /// Key of the counter-based generator used at bounces (see [`bounce_uniform`]).
     pub bounce_key: u64,
+    /// Seeds the listeners' sampling instants (one stream per listener).
     pub sampling: u64,
 }
 
 impl RunSeeds {
+    /// Sub-seeds of run `run_index` of `seed`, drawn in a fixed order from the master stream.
     pub fn new(seed: u64, run_index: u64) -> Self {
         let mut master = ChaCha8Rng::seed_from_u64(seed);
         master.set_stream(run_index);
@@ -33,6 +37,7 @@ impl RunSeeds {
     }
 }
 
+/// A ChaCha8 generator seeded with `seed` on stream `stream`.
 pub fn stream(seed: u64, stream: u64) -> ChaCha8Rng {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     rng.set_stream(stream);

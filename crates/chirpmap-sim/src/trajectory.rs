@@ -7,8 +7,11 @@ use chirpmap_core::Point;
 /// a positioning system, §II.A).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Trajectory {
+    /// Position at t = 0 (m).
     pub start: Point,
+    /// Heading at t = 0 (rad), counter-clockwise from +x.
     pub heading_rad: f64,
+    /// Speed (m/s). Paper: 10.
     pub speed_mps: f64,
     /// Heading change rate (rad/s), positive counter-clockwise.
     pub spin_rate_rps: f64,
@@ -18,8 +21,11 @@ pub struct Trajectory {
 /// listener's disc for a time span.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Capsule {
+    /// Segment start (m).
     pub a: Point,
+    /// Segment end (m).
     pub b: Point,
+    /// Thickening radius (m).
     pub radius_m: f64,
 }
 
@@ -33,6 +39,7 @@ impl Trajectory {
         self.start + Point::from_angle(self.heading_rad + half) * chord_m
     }
 
+    /// Velocity (m/s) at `t_s`: speed along the heading `h0 + ω·t`.
     pub fn velocity(&self, t_s: f64) -> Point {
         Point::from_angle(self.heading_rad + self.spin_rate_rps * t_s) * self.speed_mps
     }
