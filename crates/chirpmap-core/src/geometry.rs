@@ -223,7 +223,8 @@ impl Shape {
         }
     }
 
-    /// True when `p` lies inside or on the shape.
+    /// True when `p` lies inside the shape (circles include their boundary;
+    /// polygons use the even–odd test).
     pub fn contains(&self, p: Point) -> bool {
         match self {
             Shape::Circle(c) => p.dist(c.center) <= c.radius_m,
