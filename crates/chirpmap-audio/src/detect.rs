@@ -26,7 +26,9 @@ pub fn taper_gain(t_s: f64, duration_s: f64, taper_s: f64) -> f64 {
 /// the matched filter) and the complex conjugate phasor (for dechirping).
 #[derive(Debug, Clone)]
 pub struct ChirpTemplate {
+    /// The known linear sweep (start/end frequency, duration) the template samples.
     pub chirp: LinearChirp,
+    /// Sampling rate of the recording the template is matched against (Hz).
     pub sample_rate_hz: f64,
     /// `taper · sin(2π φ(t))`, t = n / fs.
     pub real: Vec<f32>,
@@ -35,6 +37,8 @@ pub struct ChirpTemplate {
 }
 
 impl ChirpTemplate {
+    /// Samples the waveform and the mixing phasor at `sample_rate_hz`; refuses a chirp reaching
+    /// the Nyquist frequency, an invalid rate and templates shorter than [`MIN_TEMPLATE_SAMPLES`].
     pub fn new(chirp: LinearChirp, sample_rate_hz: f64) -> Result<Self, AudioError> {
         if chirp.f_start_hz().max(chirp.f_end_hz()) >= sample_rate_hz / 2.0 {
             return Err(AudioError::InvalidParam {
@@ -97,9 +101,11 @@ impl ChirpTemplate {
         Ok(Self { chirp, sample_rate_hz, real, mix })
     }
 
+    /// Template length in samples (the chirp's duration × sample rate).
     pub fn len(&self) -> usize {
         self.real.len()
     }
+    /// Whether the template has no samples.
     pub fn is_empty(&self) -> bool {
         self.real.is_empty()
     }
@@ -129,6 +135,7 @@ pub const MIN_TEMPLATE_SAMPLES: usize = 64;
 /// One detected chirp: the sample at which its direct arrival begins.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Detection {
+    /// First sample of the chirp's direct arrival in the recording.
     pub onset_sample: usize,
     /// Matched-filter peak relative to the recording's typical level.
     pub strength: f64,

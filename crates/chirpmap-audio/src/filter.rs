@@ -10,13 +10,16 @@ use crate::error::AudioError;
 /// normalised so `a0 = 1`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Biquad {
+    /// Numerator coefficients `b0, b1, b2`.
     pub b: [f64; 3],
+    /// Denominator coefficients `a0 = 1, a1, a2`.
     pub a: [f64; 3],
 }
 
 /// A cascade of biquads (scipy's "sos" form).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Sos {
+    /// Sections applied in order.
     pub sections: Vec<Biquad>,
 }
 
@@ -147,6 +150,8 @@ pub struct SavitzkyGolay {
 }
 
 impl SavitzkyGolay {
+    /// Smoother over `window` samples (odd, ≥ 3) with a polynomial of degree
+    /// `polyorder` (< `window`); the paper's spectra use scipy's `savgol_filter`.
     pub fn new(window: usize, polyorder: usize) -> Result<Self, AudioError> {
         if window.is_multiple_of(2) || window < 3 || polyorder >= window {
             return Err(AudioError::InvalidParam {

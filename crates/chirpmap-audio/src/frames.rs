@@ -23,15 +23,19 @@ use chirpmap_core::{Echo, Point};
 /// simulator's 10⁷ measurements (`chirpmap_sim::resolve::MAX_MEASUREMENTS`).
 pub const MAX_MEASUREMENTS: usize = 10_000_000;
 
+/// How [`extract_echoes`] cuts a recording into measurement frames.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FrameParams {
+    /// Ranging method applied to each frame.
     pub method: Method,
     /// Time between measurements (s).
     pub period_s: f64,
     /// Frame length (s); `None` = the method's default (gap: sqrt(T/B);
     /// dechirp: 4·sqrt(T/B)).
     pub frame_s: Option<f64>,
+    /// Speaker position (m), for the direct path length `D(t)` at each pose.
     pub speaker: Point,
+    /// Listener id written into the extracted echoes.
     pub listener_id: u32,
 }
 

@@ -4,6 +4,8 @@
 //! dechirping), frame-wise echo extraction for moving listeners, and an
 //! image-source waveform synthesizer. No printing.
 
+#![warn(missing_docs)]
+
 pub mod detect;
 pub mod error;
 pub mod filter;

@@ -30,16 +30,22 @@ use rustfft::num_complex::Complex32;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 
+/// Ranging method (see the module docs).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Method {
+    /// The paper's frequency gap between direct and reflected sound in short FFT frames (§IV).
     Gap,
+    /// Ours: matched filter, delay between the direct and the first reflection peaks.
     Matched,
+    /// Ours: dechirping, beat frequency of the reflection over the whole chirp.
     Dechirp,
 }
 
 impl Method {
+    /// Every method, in the order reports list them.
     pub const ALL: [Method; 3] = [Method::Gap, Method::Matched, Method::Dechirp];
+    /// Lower-case name, as accepted by `FromStr` and on the command line.
     pub fn name(self) -> &'static str {
         match self {
             Method::Gap => "gap",
@@ -64,6 +70,7 @@ impl std::str::FromStr for Method {
 /// Search limits for the reflection.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RangeLimits {
+    /// Speed of sound `a` (m/s) converting time or frequency differences to Δd.
     pub speed_of_sound_mps: f64,
     /// Largest Δd searched (m). Reflections later than this are ignored.
     pub max_delta_d_m: f64,
@@ -89,6 +96,7 @@ pub struct Estimate {
     /// Frequency gap between the reflected and the direct sound (Hz); for
     /// matched filtering the gap equivalent to the measured delay.
     pub delta_f_hz: f64,
+    /// Path difference Δd between the reflected and the direct sound (m), paper Eq. 2–3.
     pub delta_d_m: f64,
     /// Reflected-to-direct amplitude ratio.
     pub relative_level: f64,
@@ -169,6 +177,7 @@ pub const GAP_FRAMES_PER_CHIRP: usize = 24;
 const DIRECT_MARGIN: f64 = 3.0;
 
 impl Ranger {
+    /// An engine with empty caches.
     pub fn new() -> Self {
         Self::default()
     }
@@ -574,8 +583,11 @@ mod tests {
 /// One detected chirp and its estimate (if a reflection was found).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ChirpResult {
+    /// Index of the chirp among the detections (0-based).
     pub index: usize,
+    /// Onset of its direct arrival in the recording (s).
     pub onset_s: f64,
+    /// Δd estimate, `None` when no reflection stood out.
     pub estimate: Option<Estimate>,
 }
 

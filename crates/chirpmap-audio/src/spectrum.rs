@@ -37,6 +37,7 @@ impl Default for FftCache {
 }
 
 impl FftCache {
+    /// Complex FFT plan of size `n` (inverse if `inverse`), created once and cached.
     pub fn plan(&mut self, n: usize, inverse: bool) -> Arc<dyn Fft<f32>> {
         let planner = &mut self.planner;
         self.plans
@@ -53,9 +54,11 @@ impl FftCache {
     pub fn hann(&mut self, n: usize) -> Arc<Vec<f32>> {
         self.windows.entry(n).or_insert_with(|| Arc::new(hann(n))).clone()
     }
+    /// In-place forward FFT of `buf` (unnormalised).
     pub fn forward(&mut self, buf: &mut [Complex32]) {
         self.plan(buf.len(), false).process(buf);
     }
+    /// In-place inverse FFT of `buf` (unnormalised: scale by 1/n yourself).
     pub fn inverse(&mut self, buf: &mut [Complex32]) {
         self.plan(buf.len(), true).process(buf);
     }

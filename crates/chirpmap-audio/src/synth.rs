@@ -82,6 +82,7 @@ impl Default for SynthConfig {
 }
 
 impl SynthConfig {
+    /// The WAV sample format named by `bits` (see [`SampleFormat::parse`]).
     pub fn format(&self) -> Result<SampleFormat, AudioError> {
         SampleFormat::parse(&self.bits)
     }
@@ -229,6 +230,7 @@ fn paths_at(source: Point, obstacles: &[Obstacle], listener: Point, out: &mut Ve
 /// A rendered recording and the listeners' poses.
 #[derive(Debug, Clone)]
 pub struct Synthesized {
+    /// Sampling rate (Hz).
     pub sample_rate_hz: u32,
     /// One channel per listener.
     pub channels: Vec<Vec<f32>>,

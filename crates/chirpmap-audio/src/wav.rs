@@ -44,8 +44,11 @@ impl SampleFormat {
 /// A decoded recording: one `f32` vector per channel, full scale = ±1.
 #[derive(Debug, Clone)]
 pub struct Recording {
+    /// Sampling rate (Hz).
     pub sample_rate_hz: u32,
+    /// Sample format (as read from the file, or to write).
     pub format: SampleFormat,
+    /// Samples per channel, scaled to full scale ±1.
     pub channels: Vec<Vec<f32>>,
     /// Samples at (or beyond) full scale, over all channels: a sign the
     /// recorder's gain was too high.
@@ -53,9 +56,11 @@ pub struct Recording {
 }
 
 impl Recording {
+    /// Samples per channel.
     pub fn len_samples(&self) -> usize {
         self.channels.first().map_or(0, Vec::len)
     }
+    /// Duration (s): samples per channel over the sampling rate.
     pub fn duration_s(&self) -> f64 {
         self.len_samples() as f64 / f64::from(self.sample_rate_hz)
     }
