@@ -18,7 +18,7 @@ use std::time::Instant;
 #[derive(Debug, Args)]
 #[command(group = clap::ArgGroup::new("input").required(true).args(["echoes", "wav"]))]
 pub struct MapArgs {
-    /// Echoes CSV (header: source_x,source_y,listener_x,listener_y,delta_d[,weight,t,listener,sigma_m]).
+    /// Echoes CSV (header: `source_x,source_y,listener_x,listener_y,delta_d[,weight,t,listener,sigma_m]`).
     #[arg(long, conflicts_with = "wav")]
     pub echoes: Option<PathBuf>,
     /// Instead of --echoes: a recording of a moving listener (needs --poses and --speaker); the echoes

@@ -132,7 +132,7 @@ const MESSAGE_CHARS: usize = 300;
 
 /// The first line of a parser's message, with every `` `quoted` `` part (a
 /// key or value from the input, possibly megabytes long) cut to an excerpt,
-/// and the whole cut to [`MESSAGE_CHARS`]. Lists of expected keys survive.
+/// and the whole cut to `MESSAGE_CHARS` characters. Lists of expected keys survive.
 pub fn short_message(message: &str) -> String {
     let first = message.lines().next().unwrap_or("");
     let parts: Vec<String> = first

@@ -13,7 +13,7 @@
 //!    closed-form tangents of [`tangent`] (the common-tangent view of room
 //!    geometry inference, Antonacci et al. 2012), refined by least squares.
 //!    Compact reflectors (pillars, poles) come from the envelope of the
-//!    ellipses of consecutive poses ([`envelope`]).
+//!    ellipses of consecutive poses (the `envelope` module).
 //! 4. **Ghosts.** A line candidate that lies mostly in carved free space, or
 //!    whose tangency points lie behind a stronger line as seen from the
 //!    source or listener (a corner's second-order echo draws such a virtual
