@@ -317,17 +317,9 @@ pub(crate) fn max_line_deviation(pts: &[Point]) -> f64 {
     if pts.len() < 3 {
         return 0.0;
     }
-    let n = pts.len() as f64;
-    let c = pts.iter().fold(Point::new(0.0, 0.0), |a, &p| a + p) * (1.0 / n);
-    let (mut sxx, mut sxy, mut syy) = (0.0, 0.0, 0.0);
-    for p in pts {
-        let d = *p - c;
-        sxx += d.x * d.x;
-        sxy += d.x * d.y;
-        syy += d.y * d.y;
-    }
-    let angle = 0.5 * (2.0 * sxy).atan2(sxx - syy);
-    let normal = Point::new(-angle.sin(), angle.cos());
+    // Coincident points (no axis) lie on any line through them.
+    let Some((c, dir)) = principal_axis(pts) else { return 0.0 };
+    let normal = Point::new(-dir.y, dir.x);
     pts.iter().map(|p| (*p - c).dot(normal).abs()).fold(0.0, f64::max)
 }
 
