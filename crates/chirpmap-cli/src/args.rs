@@ -66,6 +66,9 @@ pub struct ChirpArgs {
     /// Largest path difference searched (m). Default: min(60, a·T/2).
     #[arg(long)]
     pub max_delta_d: Option<f64>,
+    /// Sweep shape: linear (the paper's) or exponential [default: linear, or the --scene's].
+    #[arg(long, value_parser = parse_sweep)]
+    pub sweep: Option<chirpmap::core::scene::SweepKind>,
 }
 
 impl ChirpArgs {
@@ -77,8 +80,15 @@ impl ChirpArgs {
             duration_s: self.duration.unwrap_or(base.duration_s),
             speed_of_sound_mps: self.speed_of_sound.unwrap_or(base.speed_of_sound_mps),
             max_delta_d_m: self.max_delta_d.or(base.max_delta_d_m),
+            kind: self.sweep.unwrap_or(base.kind),
         }
     }
+}
+
+/// Parses a sweep shape as a scene's `[chirp] kind` spells it.
+pub fn parse_sweep(s: &str) -> Result<chirpmap::core::scene::SweepKind, String> {
+    serde_json::from_value(serde_json::Value::String(s.to_owned()))
+        .map_err(|_| format!("{:?} is not a sweep shape (linear or exponential)", excerpt(s)))
 }
 
 /// Parses `paper` or `evidence`.

@@ -232,6 +232,7 @@ fn range(
         duration_s: duration,
         speed_of_sound_mps: speed_of_sound,
         max_delta_d_m: max_delta_d,
+        kind: chirpmap::core::scene::SweepKind::Linear,
     };
     let x = samples.as_slice().map_err(|_| value_error("samples must be a contiguous array"))?;
     py.detach(|| -> Result<String, String> {
@@ -280,6 +281,7 @@ fn echoes_from_recording<'py>(
         duration_s: duration,
         speed_of_sound_mps: speed_of_sound,
         max_delta_d_m: max_delta_d,
+        kind: chirpmap::core::scene::SweepKind::Linear,
     };
     let params = chirpmap::FrameParams {
         method,

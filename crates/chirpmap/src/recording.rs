@@ -6,6 +6,7 @@ use chirpmap_audio::filter::paper_highpass;
 use chirpmap_audio::ranging::{ChirpResult, RangedChirp, gap_floor_m, range_signal};
 use chirpmap_audio::stats::{median, median_ci95};
 use chirpmap_audio::{ChirpTemplate, Method, RangeLimits, wall_distance_m};
+use chirpmap_core::scene::SweepKind;
 use chirpmap_core::{Echo, LinearChirp, Point, Scene};
 use serde::Serialize;
 
@@ -26,6 +27,8 @@ pub struct ChirpSpec {
     pub speed_of_sound_mps: f64,
     /// Largest path difference searched (m); `None`: min(60, a·T/2).
     pub max_delta_d_m: Option<f64>,
+    /// Shape of the sweep (the scene's `[chirp] kind`); the paper's is linear.
+    pub kind: SweepKind,
 }
 
 impl Default for ChirpSpec {
@@ -45,6 +48,7 @@ impl ChirpSpec {
             duration_s: scene.chirp.duration,
             speed_of_sound_mps: scene.world.speed_of_sound,
             max_delta_d_m: None,
+            kind: scene.chirp.kind,
         }
     }
 }
@@ -77,6 +81,12 @@ pub fn prepare(mut x: Vec<f32>, sample_rate_hz: f64, chirp: &ChirpSpec) -> Resul
     }
     if x.iter().all(|v| *v == 0.0) {
         return Err(Error::Invalid("the channel is silent (every sample is zero)".into()));
+    }
+    if chirp.kind != SweepKind::Linear {
+        return Err(Error::Field {
+            field: "sweep",
+            reason: format!("{:?} sweeps are not ranged by this pipeline; it needs a linear chirp", chirp.kind),
+        });
     }
     let sweep = LinearChirp::new(chirp.f_start_hz, chirp.f_end_hz, chirp.duration_s)?;
     let tpl = ChirpTemplate::new(sweep, sample_rate_hz)?;
