@@ -56,7 +56,10 @@ fn sweep_writes_tables_and_is_thread_count_independent() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let ra = rows(&a);
     assert_eq!(ra.len(), 1 + 4 * 3);
-    assert_eq!(ra[0], "config,n_obstacles,sample,run,seed,score_obstacle,score_highlight,n_highlights,n_echoes");
+    assert_eq!(
+        ra[0],
+        "config,n_obstacles,sample,run,seed,score_obstacle,score_highlight,surface_f1,chamfer_m,n_highlights,n_echoes"
+    );
     assert_eq!(ra, rows(&b));
     for f in ["summary.csv", "summary.md", "summary.png", "sweep.toml"] {
         assert!(a.join(f).exists(), "{f}");

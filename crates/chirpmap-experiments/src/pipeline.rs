@@ -14,9 +14,13 @@ pub fn run_metrics(scene: &Scene, run: u64) -> Result<RunMetrics, String> {
     let mut scene = scene.clone();
     scene.run_index = run;
     let sim = chirpmap::simulate(&scene).map_err(|e| e.to_string())?;
+    let obstacles = sim.resolved.scene.explicit_obstacles().map_err(|e| e.to_string())?;
+    let surfaces = chirpmap::evaluate(&obstacles, &sim.map).surfaces;
     Ok(RunMetrics {
         score_obstacle: sim.scores.score_obstacle,
         score_highlight: sim.scores.score_highlight,
+        surface_f1: Some(surfaces.f1),
+        chamfer_m: surfaces.chamfer_m,
         n_highlights: sim.map.highlights.len(),
         n_echoes: sim.output.echoes.len(),
     })

@@ -15,6 +15,13 @@ pub struct RunMetrics {
     pub score_obstacle: Option<f64>,
     /// Score of the highlight map against the true obstacles; `None` when undefined.
     pub score_highlight: Option<f64>,
+    /// Surface F1 of the map's surfaces (its highlights as points for the
+    /// paper mapper) against the true obstacles (`chirpmap_core::metrics`);
+    /// `None` in rows written before the column existed.
+    pub surface_f1: Option<f64>,
+    /// Symmetric Chamfer distance (m) between the map's surfaces and the
+    /// obstacles; `None` when the map has no surface (or in older rows).
+    pub chamfer_m: Option<f64>,
     /// Number of highlights in the map.
     pub n_highlights: usize,
     /// Number of echoes the listeners detected.
@@ -36,14 +43,50 @@ pub struct RunRow {
     pub elapsed_s: f64,
 }
 
-/// Column names of runs.csv for `plan`: `config`, one column per parameter, then the
-/// run, seed, metric and timing columns.
+/// Metric columns after `run,seed`, in order.
+const METRIC_COLUMNS: [&str; 7] =
+    ["score_obstacle", "score_highlight", "surface_f1", "chamfer_m", "n_highlights", "n_echoes", "elapsed_s"];
+/// Columns added since the first runs.csv format; files without them are
+/// still read (their values are derived or `None`) and upgraded on resume.
+const NEWER_METRIC_COLUMNS: [&str; 2] = ["surface_f1", "chamfer_m"];
+
+/// Names every column a sweep writes (parameters may not reuse them).
+pub const RESERVED_COLUMNS: [&str; 10] = [
+    "config",
+    "run",
+    "seed",
+    "score_obstacle",
+    "score_highlight",
+    "surface_f1",
+    "chamfer_m",
+    "n_highlights",
+    "n_echoes",
+    "elapsed_s",
+];
+
+/// Column names of runs.csv for `plan`: `config`, one column per parameter
+/// (its label; labelled numeric parameters also get `<name>_value`, e.g.
+/// `spin_rate,spin_rate_value` = `pi/4,0.785…`), then the run, seed, metric
+/// and timing columns.
 pub fn header(plan: &Plan) -> Vec<String> {
     let mut h = vec!["config".to_string()];
+    for p in &plan.def.params {
+        h.push(p.name.clone());
+        if p.has_value_column() {
+            h.push(p.value_column());
+        }
+    }
+    h.extend(["run", "seed"].map(String::from));
+    h.extend(METRIC_COLUMNS.map(String::from));
+    h
+}
+
+/// The header of runs.csv files written before value and surface columns.
+fn legacy_header(plan: &Plan) -> Vec<String> {
+    let mut h = vec!["config".to_string()];
     h.extend(plan.def.params.iter().map(|p| p.name.clone()));
-    h.extend(
-        ["run", "seed", "score_obstacle", "score_highlight", "n_highlights", "n_echoes", "elapsed_s"].map(String::from),
-    );
+    h.extend(["run", "seed"].map(String::from));
+    h.extend(METRIC_COLUMNS.iter().filter(|c| !NEWER_METRIC_COLUMNS.contains(c)).map(|c| c.to_string()));
     h
 }
 
@@ -51,14 +94,34 @@ fn opt(v: Option<f64>) -> String {
     v.map_or_else(String::new, |x| x.to_string())
 }
 
-fn row_record(row: &RunRow) -> Vec<String> {
+/// The numeric value of each labelled numeric parameter in configuration `config`.
+fn value_fields(plan: &Plan, config: usize) -> Vec<String> {
+    let Some(c) = plan.configs.get(config) else { return Vec::new() };
+    plan.def
+        .params
+        .iter()
+        .zip(&c.choice)
+        .filter(|(p, _)| p.has_value_column())
+        .map(|(p, &k)| p.numeric_value(k).map_or_else(String::new, |v| v.to_string()))
+        .collect()
+}
+
+fn row_record(plan: &Plan, row: &RunRow) -> Vec<String> {
     let mut r = vec![row.job.config.to_string()];
-    r.extend(row.labels.iter().cloned());
+    let mut values = value_fields(plan, row.job.config).into_iter();
+    for (p, label) in plan.def.params.iter().zip(&row.labels) {
+        r.push(label.clone());
+        if p.has_value_column() {
+            r.push(values.next().unwrap_or_default());
+        }
+    }
     r.extend([
         row.job.run.to_string(),
         row.seed.to_string(),
         opt(row.metrics.score_obstacle),
         opt(row.metrics.score_highlight),
+        opt(row.metrics.surface_f1),
+        opt(row.metrics.chamfer_m),
         row.metrics.n_highlights.to_string(),
         row.metrics.n_echoes.to_string(),
         row.elapsed_s.to_string(),
@@ -73,8 +136,14 @@ fn csv_line(fields: &[String]) -> Vec<u8> {
     w.into_inner().unwrap_or_default()
 }
 
-/// Reads rows of a runs.csv written for `plan`; errors name file and line.
+/// Reads rows of a runs.csv written for `plan` (or by an older chirpmap,
+/// without the value and surface columns); errors name file and line.
 pub fn read_rows(path: &Path, plan: &Plan) -> Result<Vec<RunRow>, ExperimentError> {
+    Ok(read_rows_with_format(path, plan)?.0)
+}
+
+/// [`read_rows`], also telling whether the file has the current header.
+fn read_rows_with_format(path: &Path, plan: &Plan) -> Result<(Vec<RunRow>, bool), ExperimentError> {
     let text = std::fs::read(path).map_err(|e| ExperimentError::io(path, e))?;
     // A crash can leave a partial last line: ignore anything after the last newline.
     let end = text.iter().rposition(|&b| b == b'\n').map_or(0, |p| p + 1);
@@ -86,7 +155,8 @@ pub fn read_rows(path: &Path, plan: &Plan) -> Result<Vec<RunRow>, ExperimentErro
         .iter()
         .map(String::from)
         .collect();
-    if have != want {
+    let current = have == want;
+    if !current && have != legacy_header(plan) {
         return Err(ExperimentError::file(
             path,
             format!(
@@ -96,26 +166,44 @@ pub fn read_rows(path: &Path, plan: &Plan) -> Result<Vec<RunRow>, ExperimentErro
             ),
         ));
     }
+    let col = |name: &str| have.iter().position(|h| h == name);
     let np = plan.def.params.len();
+    // Parameter label columns: in the current format a value column may follow each.
+    let mut label_cols = Vec::with_capacity(np);
+    let mut value_cols = Vec::new();
+    let mut i = 1;
+    for p in &plan.def.params {
+        label_cols.push(i);
+        i += 1;
+        if current && p.has_value_column() {
+            value_cols.push(i);
+            i += 1;
+        }
+    }
     let mut rows = Vec::new();
     for rec in rdr.records() {
         let rec = rec.map_err(|e| ExperimentError::file(path, format!("malformed row: {e}")))?;
         let line = rec.position().map_or(0, |p| p.line());
         let bad = |what: &str| ExperimentError::file(path, format!("line {line}: bad {what}"));
         let f = |i: usize| rec.get(i).unwrap_or("");
+        let named = |name: &str| col(name).map_or("", f);
         let config: usize = f(0).parse().map_err(|_| bad("config"))?;
-        let labels: Vec<String> = (1..=np).map(|i| f(i).to_string()).collect();
+        let labels: Vec<String> = label_cols.iter().map(|&i| f(i).to_string()).collect();
         let c = plan.configs.get(config).ok_or_else(|| bad("config index"))?;
         if c.labels != labels {
             return Err(bad("parameter labels for this configuration"));
         }
-        let run: u64 = f(np + 1).parse().map_err(|_| bad("run"))?;
+        let values: Vec<String> = value_cols.iter().map(|&i| f(i).to_string()).collect();
+        if current && values != value_fields(plan, config) {
+            return Err(bad("parameter values for this configuration"));
+        }
+        let run: u64 = named("run").parse().map_err(|_| bad("run"))?;
         if run >= plan.def.runs {
             return Err(bad("run index"));
         }
-        let seed: u64 = f(np + 2).parse().map_err(|_| bad("seed"))?;
-        let optf = |i: usize, w: &str| -> Result<Option<f64>, ExperimentError> {
-            let s = f(i);
+        let seed: u64 = named("seed").parse().map_err(|_| bad("seed"))?;
+        let optf = |w: &str| -> Result<Option<f64>, ExperimentError> {
+            let s = named(w);
             if s.is_empty() { Ok(None) } else { s.parse().map(Some).map_err(|_| bad(w)) }
         };
         rows.push(RunRow {
@@ -123,15 +211,17 @@ pub fn read_rows(path: &Path, plan: &Plan) -> Result<Vec<RunRow>, ExperimentErro
             labels,
             seed,
             metrics: RunMetrics {
-                score_obstacle: optf(np + 3, "score_obstacle")?,
-                score_highlight: optf(np + 4, "score_highlight")?,
-                n_highlights: f(np + 5).parse().map_err(|_| bad("n_highlights"))?,
-                n_echoes: f(np + 6).parse().map_err(|_| bad("n_echoes"))?,
+                score_obstacle: optf("score_obstacle")?,
+                score_highlight: optf("score_highlight")?,
+                surface_f1: optf("surface_f1")?,
+                chamfer_m: optf("chamfer_m")?,
+                n_highlights: named("n_highlights").parse().map_err(|_| bad("n_highlights"))?,
+                n_echoes: named("n_echoes").parse().map_err(|_| bad("n_echoes"))?,
             },
-            elapsed_s: f(np + 7).parse().map_err(|_| bad("elapsed_s"))?,
+            elapsed_s: named("elapsed_s").parse().map_err(|_| bad("elapsed_s"))?,
         });
     }
-    Ok(rows)
+    Ok((rows, current))
 }
 
 /// Writes rows sorted by (configuration, run) to `path` atomically.
@@ -140,7 +230,7 @@ pub fn write_sorted(path: &Path, plan: &Plan, rows: &[RunRow]) -> Result<(), Exp
     sorted.sort_by_key(|r| r.job);
     let mut buf = csv_line(&header(plan));
     for r in sorted {
-        buf.extend(csv_line(&row_record(r)));
+        buf.extend(csv_line(&row_record(plan, r)));
     }
     let tmp = path.with_extension("csv.tmp");
     std::fs::write(&tmp, buf).map_err(|e| ExperimentError::io(&tmp, e))?;
@@ -153,6 +243,8 @@ pub fn write_sorted(path: &Path, plan: &Plan, rows: &[RunRow]) -> Result<(), Exp
 pub struct RunsFile {
     /// Location of the runs.csv file.
     pub path: PathBuf,
+    /// The sweep's plan (column layout of the value columns).
+    plan: Plan,
     file: std::fs::File,
     /// Rows already in the file, keyed by job (the runs a resume skips).
     pub done: BTreeMap<Job, RunRow>,
@@ -201,7 +293,12 @@ impl RunsFile {
         }
         let mut done = BTreeMap::new();
         if path.exists() {
-            let rows = read_rows(&path, plan)?;
+            let (rows, current) = read_rows_with_format(&path, plan)?;
+            if !current {
+                // An older format: rewrite it (atomically, it is this sweep's own
+                // file) in the current one before appending rows to it.
+                write_sorted(&path, plan, &rows)?;
+            }
             for r in rows {
                 if done.insert(r.job, r.clone()).is_some() {
                     return Err(ExperimentError::file(&path, format!("duplicate row for {:?}", r.job)));
@@ -224,7 +321,7 @@ impl RunsFile {
         if file.seek(std::io::SeekFrom::End(0)).map_err(|e| ExperimentError::io(&path, e))? == 0 {
             file.write_all(&csv_line(&header(plan))).map_err(|e| ExperimentError::io(&path, e))?;
         }
-        Ok(Self { path, file, done })
+        Ok(Self { path, plan: plan.clone(), file, done })
     }
 
     /// Appends one finished run as a whole line and flushes it.
@@ -232,7 +329,7 @@ impl RunsFile {
         if self.done.contains_key(&row.job) {
             return Ok(());
         }
-        let line = csv_line(&row_record(&row));
+        let line = csv_line(&row_record(&self.plan, &row));
         self.file.write_all(&line).map_err(|e| ExperimentError::io(&self.path, e))?;
         self.file.flush().map_err(|e| ExperimentError::io(&self.path, e))?;
         self.done.insert(row.job, row);

@@ -46,6 +46,23 @@ pub struct Param {
 }
 
 impl Param {
+    /// Whether runs.csv gets a numeric `<name>_value` column beside the
+    /// label: the values are numbers and have labels that hide them.
+    pub fn has_value_column(&self) -> bool {
+        !self.labels.is_empty() && (0..self.values.len()).all(|k| self.numeric_value(k).is_some())
+    }
+    /// Name of the numeric value column.
+    pub fn value_column(&self) -> String {
+        format!("{}_value", self.name)
+    }
+    /// Value `k` as a number, if it is one.
+    pub fn numeric_value(&self, k: usize) -> Option<f64> {
+        match self.values.get(k)? {
+            toml::Value::Integer(i) => Some(*i as f64),
+            toml::Value::Float(f) => Some(*f),
+            _ => None,
+        }
+    }
     /// Label of value `k`: the given label, else the value itself (strings unquoted).
     pub fn label(&self, k: usize) -> String {
         self.labels.get(k).cloned().unwrap_or_else(|| match &self.values[k] {
@@ -152,8 +169,10 @@ impl SweepDef {
             {
                 return Err(err(format!("parameter {:?}: baseline {b:?} is not one of its labels", p.name)));
             }
-            if ["config", "run", "seed", "score_obstacle", "score_highlight", "n_highlights", "n_echoes", "elapsed_s"]
-                .contains(&p.name.as_str())
+            let taken = |n: &str| crate::runs::RESERVED_COLUMNS.contains(&n);
+            if taken(&p.name)
+                || (p.has_value_column()
+                    && (taken(&p.value_column()) || self.params.iter().any(|q| q.name == p.value_column())))
                 || p.name.contains(',')
                 || p.name.is_empty()
             {

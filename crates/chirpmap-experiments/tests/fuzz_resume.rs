@@ -33,6 +33,8 @@ fn fake(scene: &Scene, run: u64) -> Result<RunMetrics, String> {
     Ok(RunMetrics {
         score_obstacle: Some(x),
         score_highlight: if run.is_multiple_of(2) { None } else { Some(-x) },
+        surface_f1: Some(x / 2.0),
+        chamfer_m: if run.is_multiple_of(3) { None } else { Some(x) },
         n_highlights: run as usize,
         n_echoes: usize::from(scene.random_obstacles.count as u8),
     })

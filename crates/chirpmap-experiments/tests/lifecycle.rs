@@ -29,6 +29,8 @@ fn fake(scene: &Scene, run: u64) -> Result<RunMetrics, String> {
     Ok(RunMetrics {
         score_obstacle: Some(x / n),
         score_highlight: Some(1.0 - x / scene.listeners[0].speed),
+        surface_f1: Some(x),
+        chamfer_m: None,
         n_highlights: run as usize,
         n_echoes: 10 * run as usize,
     })
@@ -250,4 +252,61 @@ fn a_damaged_header_is_quoted_short() {
     std::fs::write(&runs, format!("{}\n", "x".repeat(1_000_000))).unwrap();
     let e = run_sweep(&plan, &d, Shard::ALL, 1, fake, |_, _| {}).unwrap_err().to_string();
     assert!(e.len() < 600 && e.contains("does not match"), "{} chars", e.len());
+}
+
+/// Issue 13, item 5: a labelled numeric parameter gets its number beside the
+/// label (`pattern` = "slow" is `listeners.0.speed` = 5).
+#[test]
+fn labelled_numeric_parameters_get_a_value_column() {
+    let plan = SweepDef::from_toml_str(SWEEP).unwrap().plan(|_| Ok(())).unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path().join("a");
+    run_sweep(&plan, &d, Shard::ALL, 1, fake, |_, _| {}).unwrap();
+    let text = std::fs::read_to_string(d.join("runs.csv")).unwrap();
+    let mut lines = text.lines();
+    assert_eq!(
+        lines.next().unwrap(),
+        "config,n_obstacles,pattern,pattern_value,run,seed,score_obstacle,score_highlight,surface_f1,chamfer_m,\
+         n_highlights,n_echoes,elapsed_s"
+    );
+    for l in lines {
+        let f: Vec<&str> = l.split(',').collect();
+        let want = if f[2] == "slow" { "5" } else { "10" };
+        assert_eq!(f[3], want, "{l}");
+    }
+}
+
+/// A runs.csv written before the value and surface columns resumes: its rows
+/// are kept (surface metrics empty) and the file is upgraded in place.
+#[test]
+fn a_runs_csv_in_the_old_format_resumes_and_is_upgraded() {
+    let plan = SweepDef::from_toml_str(SWEEP).unwrap().plan(|_| Ok(())).unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path().join("a");
+    run_sweep(&plan, &d, Shard::ALL, 1, fake, |_, _| {}).unwrap();
+    let runs = d.join("runs.csv");
+    let new = std::fs::read_to_string(&runs).unwrap();
+    // Rewrite the first 5 rows in the old layout (no pattern_value, surface_f1, chamfer_m).
+    let old: Vec<String> = new
+        .lines()
+        .take(6)
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            [&f[0..3], &f[4..8], &f[10..]].concat().join(",")
+        })
+        .collect();
+    assert!(old[0].starts_with("config,n_obstacles,pattern,run,seed,score_obstacle,score_highlight,n_highlights"));
+    std::fs::write(&runs, old.join("\n") + "\n").unwrap();
+    let o = run_sweep(&plan, &d, Shard::ALL, 1, fake, |_, _| {}).unwrap();
+    assert_eq!((o.resumed, o.executed), (5, 37));
+    let upgraded = std::fs::read_to_string(&runs).unwrap();
+    assert_eq!(upgraded.lines().next(), new.lines().next());
+    assert_eq!(upgraded.lines().count(), new.lines().count());
+    // Resumed rows keep their scores and have no surface metrics; the rest are as before.
+    let cut = |l: &str| l.split(',').take(8).collect::<Vec<_>>().join(",");
+    for (u, n) in upgraded.lines().zip(new.lines()).skip(1) {
+        assert_eq!(cut(u), cut(n));
+    }
+    let row1: Vec<&str> = upgraded.lines().nth(1).unwrap().split(',').collect();
+    assert_eq!((row1[8], row1[9]), ("", ""));
 }
