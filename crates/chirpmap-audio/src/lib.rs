@@ -7,10 +7,13 @@
 #![warn(missing_docs)]
 
 pub mod detect;
+pub mod echoes;
 pub mod error;
+pub mod farina;
 pub mod filter;
 pub mod frames;
 pub mod ranging;
+pub mod rir;
 pub mod spectrum;
 pub mod stats;
 pub mod synth;
