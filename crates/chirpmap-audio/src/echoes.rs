@@ -239,8 +239,8 @@ pub fn pursue(ir: &[Complex64], atom: &SystemResponse, p: &PursuitParams) -> Opt
         // Only starts whose window overlaps the change need recomputing.
         let lo = ist.saturating_sub(la);
         let hi = (ist + tt.len()).min(n_starts);
-        for k in lo..hi {
-            corr[k] = correlate_at(res, &atom.samples, energy, k);
+        for (k, c) in corr.iter_mut().enumerate().take(hi).skip(lo) {
+            *c = correlate_at(res, &atom.samples, energy, k);
         }
         Some(g)
     };
@@ -253,8 +253,8 @@ pub fn pursue(ir: &[Complex64], atom: &SystemResponse, p: &PursuitParams) -> Opt
         for (r, a) in res[s..].iter_mut().zip(&atom.samples) {
             *r -= a;
         }
-        for k in s.saturating_sub(la)..(s + la).min(n_starts) {
-            corr[k] = correlate_at(&res, &atom.samples, energy, k);
+        for (k, c) in corr.iter_mut().enumerate().take((s + la).min(n_starts)).skip(s.saturating_sub(la)) {
+            *c = correlate_at(&res, &atom.samples, energy, k);
         }
         (s as f64, Complex64::new(1.0, 0.0))
     } else {
