@@ -27,9 +27,6 @@ pub struct SweepArgs {
     /// Run only shard I of N (0-based), e.g. `--shard 2/8`; join shards with `chirpmap merge`.
     #[arg(long, value_parser = parse_shard)]
     pub shard: Option<Shard>,
-    /// Do not draw a progress bar.
-    #[arg(long)]
-    pub no_progress: bool,
 }
 
 #[derive(Debug, Args)]
@@ -72,7 +69,7 @@ fn finish(dir: &Path, plan: &Plan, summaries: &[chirpmap_experiments::summary::C
     Ok(())
 }
 
-pub fn run_sweep_cmd(args: &SweepArgs) -> Result<()> {
+pub fn run_sweep_cmd(args: &SweepArgs, no_progress: bool) -> Result<()> {
     let mut def = load_sweep(&args.sweep)?;
     if let Some(r) = args.runs {
         def.runs = r;
@@ -85,7 +82,7 @@ pub fn run_sweep_cmd(args: &SweepArgs) -> Result<()> {
     }
     let total = plan.shard_jobs(shard).len();
     let bar = ProgressBar::new(total as u64);
-    if args.no_progress {
+    if no_progress {
         bar.set_draw_target(ProgressDrawTarget::hidden());
     }
     bar.set_style(

@@ -43,6 +43,9 @@ use std::process::ExitCode;
 struct Cli {
     #[command(subcommand)]
     command: Command,
+    /// Draw no progress bar (any command; long-running ones draw one on stderr), e.g. in batch jobs.
+    #[arg(long, global = true)]
+    no_progress: bool,
 }
 
 #[derive(Debug, Subcommand)]
@@ -68,7 +71,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Simulate(args) => cmd_simulate::run(&args),
         Command::Map(args) => cmd_map::run(&args),
-        Command::Sweep(args) => cmd_sweep::run_sweep_cmd(&args),
+        Command::Sweep(args) => cmd_sweep::run_sweep_cmd(&args, cli.no_progress),
         Command::Merge(args) => cmd_sweep::run_merge_cmd(&args),
         Command::Synth(args) => cmd_synth::run(&args),
         Command::Range(args) => cmd_range::run(&args),
