@@ -26,7 +26,8 @@
 //! a reflection off an absorbing panel.
 
 use rustfft::FftPlanner;
-use rustfft::num_complex::Complex64;
+/// Complex samples of impulse responses (re-exported for the facade).
+pub use rustfft::num_complex::Complex64;
 
 /// The system response used as the atom of matching pursuit.
 #[derive(Debug, Clone, PartialEq)]
@@ -99,6 +100,8 @@ pub struct PursuitParams {
     /// Whether the atom was cut from this very response (the direct sound is
     /// then subtracted exactly, and nothing within the atom is searched).
     pub self_estimated: bool,
+    /// Samples after the peak kept in the atom that matches echoes.
+    pub echo_atom_after_peak: usize,
 }
 
 /// One arrival explained by the atom.
@@ -202,27 +205,41 @@ fn correlate_at(res: &[Complex64], atom: &[Complex64], energy: f64, k: usize) ->
     acc / energy
 }
 
-/// Explains `ir` as the direct arrival plus echoes, each a copy of `atom`
-/// (see the module docs). `None` when the direct sound is not found, the
-/// response is shorter than the atom, or the atom is silent.
-pub fn pursue(ir: &[Complex64], atom: &SystemResponse, p: &PursuitParams) -> Option<Pursuit> {
-    let la = atom.samples.len();
-    let energy = atom.energy();
-    if la == 0 || ir.len() < la + 2 || !(energy > 0.0 && energy.is_finite()) {
-        return None;
-    }
-    let pk = atom.peak_index as f64;
-    let mut res = ir.to_vec();
-    let mut shifter = Shifter::new(&atom.samples);
-    let mut corr = correlate_all(&res, &atom.samples, energy);
-    let n_starts = corr.len();
-    let mut subtract = |res: &mut Vec<Complex64>, corr: &mut Vec<Complex64>, s0: f64| -> Option<Complex64> {
-        let ist = s0.floor();
-        if ist < 0.0 {
+/// One atom's matching state over a residual: the atom, its fractional
+/// shifter and its correlation with the residual at every start.
+struct Stage {
+    atom: Vec<Complex64>,
+    energy: f64,
+    shifter: Shifter,
+    corr: Vec<Complex64>,
+}
+
+impl Stage {
+    fn new(atom: &[Complex64], res: &[Complex64]) -> Option<Self> {
+        let energy: f64 = atom.iter().map(|c| c.norm_sqr()).sum();
+        if atom.is_empty() || res.len() < atom.len() + 2 || !(energy > 0.0 && energy.is_finite()) {
             return None;
         }
-        let ist = ist as usize;
-        let tt = shifter.shifted(s0 - ist as f64);
+        let corr = correlate_all(res, atom, energy);
+        Some(Self { atom: atom.to_vec(), energy, shifter: Shifter::new(atom), corr })
+    }
+
+    /// Recomputes the correlation at the starts whose window overlaps `res[lo..hi]`.
+    fn update(&mut self, res: &[Complex64], lo: usize, hi: usize) {
+        let (la, n) = (self.atom.len(), self.corr.len());
+        for (k, c) in self.corr.iter_mut().enumerate().take(hi.min(n)).skip(lo.saturating_sub(la)) {
+            *c = correlate_at(res, &self.atom, self.energy, k);
+        }
+    }
+
+    /// Fits the atom starting at `s0` (fractional) by least squares,
+    /// subtracts it from `res` and returns its complex gain.
+    fn subtract(&mut self, res: &mut [Complex64], s0: f64) -> Option<Complex64> {
+        if s0.is_nan() || s0 < 0.0 {
+            return None;
+        }
+        let ist = s0.floor() as usize;
+        let tt = self.shifter.shifted(s0 - ist as f64);
         let seg = res.get(ist..ist + tt.len())?;
         let (mut num, mut den) = (Complex64::new(0.0, 0.0), 0.0);
         for (t, r) in tt.iter().zip(seg) {
@@ -236,50 +253,62 @@ pub fn pursue(ir: &[Complex64], atom: &SystemResponse, p: &PursuitParams) -> Opt
         for (r, t) in res[ist..ist + tt.len()].iter_mut().zip(&tt) {
             *r -= g * t;
         }
-        // Only starts whose window overlaps the change need recomputing.
-        let lo = ist.saturating_sub(la);
-        let hi = (ist + tt.len()).min(n_starts);
-        for (k, c) in corr.iter_mut().enumerate().take(hi).skip(lo) {
-            *c = correlate_at(res, &atom.samples, energy, k);
-        }
+        self.update(res, ist, ist + tt.len());
         Some(g)
-    };
+    }
+
+    fn best(&self, lo: usize, hi: usize) -> Option<usize> {
+        (lo..hi.min(self.corr.len())).max_by(|&a, &b| self.corr[a].norm_sqr().total_cmp(&self.corr[b].norm_sqr()))
+    }
+}
+
+/// Explains `ir` as the direct arrival plus echoes (see the module docs).
+/// The direct arrival is removed with the whole atom (its ringing
+/// included); echoes are matched with the atom's first
+/// `peak_index + p.echo_atom_after_peak` samples, the part that locates an
+/// arrival best when arrivals overlap. `None` when the direct sound is not
+/// found, the response is shorter than the atom, or the atom is silent.
+pub fn pursue(ir: &[Complex64], atom: &SystemResponse, p: &PursuitParams) -> Option<Pursuit> {
+    let pk = atom.peak_index;
+    let mut res = ir.to_vec();
     // The direct arrival.
-    let (d_lo, d_hi) = (p.direct_lo, p.direct_hi.min(ir.len()));
-    let direct_peak = argmax_norm(ir, d_lo, d_hi)?;
+    let direct_peak = argmax_norm(ir, p.direct_lo, p.direct_hi.min(ir.len()))?;
     let (direct_start, g0) = if p.self_estimated {
         // The atom is this very window: remove it exactly.
-        let s = direct_peak.checked_sub(atom.peak_index)?;
+        let s = direct_peak.checked_sub(pk)?;
+        if s + atom.samples.len() > res.len() || atom.energy() <= 0.0 {
+            return None;
+        }
         for (r, a) in res[s..].iter_mut().zip(&atom.samples) {
             *r -= a;
         }
-        for (k, c) in corr.iter_mut().enumerate().take((s + la).min(n_starts)).skip(s.saturating_sub(la)) {
-            *c = correlate_at(&res, &atom.samples, energy, k);
-        }
         (s as f64, Complex64::new(1.0, 0.0))
     } else {
-        let lo = direct_peak.saturating_sub(atom.peak_index + 8);
-        let hi = (direct_peak + 8).saturating_sub(atom.peak_index).min(n_starts);
-        let k = (lo..hi).max_by(|&a, &b| corr[a].norm_sqr().total_cmp(&corr[b].norm_sqr()))?;
-        let s0 = refine(&corr, k);
-        let g = subtract(&mut res, &mut corr, s0)?;
+        let mut stage = Stage::new(&atom.samples, &res)?;
+        let k = stage.best(direct_peak.saturating_sub(pk + 8), (direct_peak + 8).saturating_sub(pk))?;
+        let s0 = refine(&stage.corr, k);
+        let g = stage.subtract(&mut res, s0)?;
         (s0, g)
     };
     let g0n = g0.norm();
     if !(g0n > 0.0 && g0n.is_finite()) {
         return None;
     }
+    let echo_len = (pk + p.echo_atom_after_peak.max(1)).min(atom.samples.len());
+    let mut stage = Stage::new(&atom.samples[..echo_len], &res)?;
     let thr = 10f64.powf(p.threshold_db / 20.0);
+    // Echo starts: the echo's peak lies `lag` after the direct's, so its
+    // atom starts `lag` after the direct atom's start.
     let lo = (direct_start + p.min_lag).ceil().max(0.0) as usize;
-    let hi = ((direct_start + p.max_lag).floor().max(0.0) as usize + 1).min(n_starts);
+    let hi = ((direct_start + p.max_lag).floor().max(0.0) as usize + 1).min(stage.corr.len());
     let mut arrivals = Vec::new();
     while arrivals.len() < p.max_echoes && lo + 2 < hi {
-        let Some(k) = (lo..hi).max_by(|&a, &b| corr[a].norm_sqr().total_cmp(&corr[b].norm_sqr())) else { break };
-        if corr[k].norm() < thr * g0n || k == lo || k + 1 == hi {
+        let Some(k) = stage.best(lo, hi) else { break };
+        if stage.corr[k].norm() < thr * g0n || k == lo || k + 1 == hi {
             break;
         }
-        let s0 = refine(&corr, k);
-        let Some(g) = subtract(&mut res, &mut corr, s0) else { break };
+        let s0 = refine(&stage.corr, k);
+        let Some(g) = stage.subtract(&mut res, s0) else { break };
         let rel = g / g0;
         if rel.norm() < 0.5 * thr {
             // The fit explains far less than the correlation promised: the
@@ -288,7 +317,7 @@ pub fn pursue(ir: &[Complex64], atom: &SystemResponse, p: &PursuitParams) -> Opt
         }
         arrivals.push(Arrival { lag_samples: s0 - direct_start, amplitude: rel.norm(), phase_rad: rel.arg() });
     }
-    Some(Pursuit { direct_index: direct_start + pk, direct_gain: g0, arrivals })
+    Some(Pursuit { direct_index: direct_start + pk as f64, direct_gain: g0, arrivals })
 }
 
 fn refine(corr: &[Complex64], k: usize) -> f64 {
@@ -340,6 +369,7 @@ mod tests {
             max_echoes: 10,
             threshold_db: -30.0,
             self_estimated: true,
+            echo_atom_after_peak: 70,
         };
         let out = pursue(&ir, &atom, &p).unwrap();
         let mut got: Vec<Arrival> = out.arrivals.clone();

@@ -99,3 +99,23 @@ pub fn parse_mapper(s: &str) -> Result<chirpmap::MapperKind, String> {
         _ => Err(format!("{:?} is not a mapper (paper or evidence)", excerpt(s))),
     }
 }
+
+/// A position on the command line: `X,Y` (2D) or `X,Y,Z` (m).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PointArg {
+    /// X (m).
+    pub x: f64,
+    /// Y (m).
+    pub y: f64,
+    /// Height Z (m), when three numbers were given.
+    pub z: Option<f64>,
+}
+
+/// Parses `X,Y` or `X,Y,Z` (m).
+pub fn parse_point_2or3(s: &str) -> Result<PointArg, String> {
+    match parse_numbers(s)?.as_slice() {
+        [x, y] => Ok(PointArg { x: *x, y: *y, z: None }),
+        [x, y, z] => Ok(PointArg { x: *x, y: *y, z: Some(*z) }),
+        _ => Err("expected X,Y or X,Y,Z".into()),
+    }
+}

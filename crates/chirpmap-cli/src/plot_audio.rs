@@ -190,6 +190,110 @@ where
     Ok(())
 }
 
+/// Echogram (issue 10, item 5): the impulse response's envelope in dB
+/// against the path difference, the echoes found in most chirps as red
+/// dashed lines, the predicted floor/ceiling echoes as blue dotted ones.
+pub fn render_echogram(
+    path: &Path,
+    title: &str,
+    curve: &[(f64, f64)],
+    echoes: &[(f64, String)],
+    predicted: &[(&'static str, f64)],
+) -> Result<()> {
+    ensure_font();
+    with_backend!(path, (1100, 520), |root| draw_echogram(root, title, curve, echoes, predicted))
+}
+
+/// Lowest level shown by the echogram (dB re the direct sound).
+const ECHOGRAM_FLOOR_DB: f64 = -60.0;
+
+fn draw_echogram<DB: DrawingBackend>(
+    root: DrawingArea<DB, Shift>,
+    title: &str,
+    curve: &[(f64, f64)],
+    echoes: &[(f64, String)],
+    predicted: &[(&'static str, f64)],
+) -> Result<()>
+where
+    DB::ErrorType: 'static,
+{
+    root.fill(&WHITE).map_err(plot_err)?;
+    let finite = || curve.iter().filter(|(d, l)| d.is_finite() && l.is_finite());
+    let x0 = finite().map(|p| p.0).fold(f64::INFINITY, f64::min);
+    let x1 = finite().map(|p| p.0).fold(f64::NEG_INFINITY, f64::max);
+    let (x0, x1) = if x0.is_finite() && x1 > x0 { (x0, x1) } else { (0.0, 1.0) };
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, ("sans-serif", 20))
+        .margin(12)
+        .margin_right(40)
+        .x_label_area_size(44)
+        .y_label_area_size(70)
+        .build_cartesian_2d(x0..x1, ECHOGRAM_FLOOR_DB..5.0)
+        .map_err(plot_err)?;
+    let fmt = |v: &f64| tick_label(*v);
+    chart
+        .configure_mesh()
+        .light_line_style(RGBColor(235, 235, 235))
+        .bold_line_style(RGBColor(215, 215, 215))
+        .x_desc("path difference to the direct sound (m)")
+        .y_desc("envelope (dB re direct)")
+        .x_label_formatter(&fmt)
+        .y_label_formatter(&fmt)
+        .axis_desc_style(("sans-serif", 16))
+        .label_style(("sans-serif", 14))
+        .draw()
+        .map_err(plot_err)?;
+    chart
+        .draw_series(LineSeries::new(finite().map(|&(d, l)| (d, l.max(ECHOGRAM_FLOOR_DB))), BLACK.stroke_width(1)))
+        .map_err(plot_err)?
+        .label("median envelope")
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], BLACK.stroke_width(2)));
+    for (k, (d, label)) in echoes.iter().enumerate() {
+        let line = std::iter::once(plotters::element::DashedPathElement::new(
+            vec![(*d, ECHOGRAM_FLOOR_DB), (*d, 5.0)],
+            5,
+            4,
+            RED.mix(0.8).stroke_width(1),
+        ));
+        let s = chart.draw_series(line).map_err(plot_err)?;
+        if k == 0 {
+            s.label("echo (in most chirps)")
+                .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], RED.stroke_width(2)));
+        }
+        if !label.is_empty() {
+            chart
+                .draw_series(std::iter::once(Text::new(label.clone(), (*d, 2.0), ("sans-serif", 13).into_font())))
+                .map_err(plot_err)?;
+        }
+    }
+    for (k, (label, d)) in predicted.iter().enumerate() {
+        let line = std::iter::once(plotters::element::DashedPathElement::new(
+            vec![(*d, ECHOGRAM_FLOOR_DB), (*d, 5.0)],
+            2,
+            3,
+            BLUE.stroke_width(2),
+        ));
+        let s = chart.draw_series(line).map_err(plot_err)?;
+        if k == 0 {
+            s.label("predicted floor/ceiling")
+                .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], BLUE.stroke_width(2)));
+        }
+        let text =
+            Text::new(format!("{label} (predicted)"), (*d, ECHOGRAM_FLOOR_DB + 4.0), ("sans-serif", 13).into_font());
+        chart.draw_series(std::iter::once(text)).map_err(plot_err)?;
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.9))
+        .border_style(BLACK)
+        .label_font(("sans-serif", 14))
+        .position(SeriesLabelPosition::UpperRight)
+        .draw()
+        .map_err(plot_err)?;
+    root.present().map_err(plot_err)?;
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -217,6 +321,16 @@ mod tests {
             render_spectrogram(&dir.path().join(format!("g.{ext}")), "g", &frames, 1.0, 0.01, 50.0, 10_000.0).unwrap();
             render_spectrum(&dir.path().join(format!("s.{ext}")), "s", &freqs, &amp, Some(3000.0), Some(4200.0))
                 .unwrap();
+            let curve: Vec<(f64, f64)> =
+                (0..500).map(|i| (f64::from(i) * 0.01, -40.0 + 30.0 * f64::from(i % 97 == 0))).collect();
+            render_echogram(
+                &dir.path().join(format!("e.{ext}")),
+                "e",
+                &curve,
+                &[(0.97, String::new()), (1.94, "ceiling".into())],
+                &[("ceiling", 1.9)],
+            )
+            .unwrap();
         }
         let svg = std::fs::read_to_string(dir.path().join("g.svg")).unwrap();
         assert!(svg.contains("<image") && svg.contains("dB"));

@@ -45,6 +45,7 @@
 mod error;
 mod mapping;
 mod recording;
+mod rooms;
 mod simulate;
 
 pub use chirpmap_audio as audio;
@@ -65,6 +66,10 @@ pub use mapping::{
 pub use recording::{
     ChirpSpec, ChirpSummary, FrameParams, MethodSummary, PoseTrack, Prepared, RangeGeometry, RangeReport, RangeSummary,
     RecordingEchoes, SPEED_OF_SOUND_RANGE_MPS, WallStats, echoes_from_recording, prepare, range, wall_distance,
+};
+pub use rooms::{
+    DEFAULT_MAX_ECHOES, EchoCluster, EchoOptions, RoomEcho, RoomGeometry, RoomPrepared, RoomReport, calibration_response,
+    calibration_response_rir, prepare_room, rir_echoes, room_echoes,
 };
 pub use simulate::{Simulation, default_listener_path, parse_scene, simulate, validate_scene};
 
