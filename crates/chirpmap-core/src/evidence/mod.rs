@@ -323,6 +323,30 @@ pub(crate) fn max_line_deviation(pts: &[Point]) -> f64 {
     pts.iter().map(|p| (*p - c).dot(normal).abs()).fold(0.0, f64::max)
 }
 
+/// Adds a highlight for every surface that has none within `radius_m` (at
+/// the cell of its point, or of its segment's midpoint), strongest surface
+/// first. Highlights are the paper's output (its scores are computed on
+/// them); when poses are sparse (Table I at 50 ms) a well-supported surface's
+/// tangency points fall in different cells, no cell's log-odds reaches
+/// `highlight_min_logodds`, and the map would otherwise report surfaces but
+/// no highlight.
+fn represent_surfaces(grid: &Grid, surfaces: &[Surface], radius_m: f64, highlights: &mut Vec<Highlight>) {
+    let radius_m = radius_m.max(grid.spec.cell_m);
+    for s in surfaces {
+        let one = std::slice::from_ref(s);
+        if highlights.iter().any(|h| crate::metrics::surface_distance(one, h.pos) <= radius_m) {
+            continue;
+        }
+        let rep = match s.kind {
+            SurfaceKind::Point => s.p0,
+            SurfaceKind::Line => (s.p0 + s.p1) * 0.5,
+        };
+        if let Some((i, j)) = grid.spec.cell_of(rep) {
+            highlights.push(Highlight { pos: grid.spec.cell_center(i, j), value: grid.data[j * grid.spec.nx + i] });
+        }
+    }
+}
+
 /// Maps `echoes` on the grid `spec` (issue 9): free space, surfaces (lines
 /// and compact reflectors, ghosts rejected, mirror ambiguity flagged), the
 /// final log-odds map and its highlights. Errors on invalid parameters,
@@ -391,11 +415,12 @@ pub fn map_evidence(echoes: &[Echo], spec: GridSpec, params: &EvidenceParams) ->
         }
     }
     let r_cells = (params.peak_radius_m / spec.cell_m + 1e-9).floor().min(1e6) as usize;
-    let highlights = local_maxima(&kept, r_cells);
+    let mut highlights = local_maxima(&kept, r_cells);
 
     let mut surfaces: Vec<Surface> = surfaces.into_iter().map(|(s, _)| s).collect();
     surfaces.sort_by_key(|s| std::cmp::Reverse(s.support));
     surfaces.truncate(params.max_surfaces as usize);
+    represent_surfaces(&grid, &surfaces, params.peak_radius_m, &mut highlights);
     Ok(EvidenceMap { grid, surfaces, highlights, cells_updated })
 }
 
