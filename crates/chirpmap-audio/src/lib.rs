@@ -7,6 +7,7 @@
 #![warn(missing_docs)]
 
 pub mod detect;
+pub mod doppler;
 pub mod echoes;
 pub mod error;
 pub mod farina;

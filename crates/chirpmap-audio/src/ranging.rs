@@ -116,7 +116,7 @@ pub const GAP_RELIABLE_FACTOR: f64 = 2.0;
 /// Index of the first local maximum in `v[lo..hi]` at least `frac` × the
 /// largest value there and above `floor`. "First" = the earliest reflection
 /// (issue 5: the first reflection after the direct path).
-fn first_strong_peak(v: &[f64], lo: usize, hi: usize, frac: f64, floor: f64) -> Option<usize> {
+pub(crate) fn first_strong_peak(v: &[f64], lo: usize, hi: usize, frac: f64, floor: f64) -> Option<usize> {
     let hi = hi.min(v.len());
     if lo + 2 >= hi {
         return None;
@@ -129,7 +129,7 @@ fn first_strong_peak(v: &[f64], lo: usize, hi: usize, frac: f64, floor: f64) -> 
     (lo.max(1)..hi.min(v.len() - 1)).find(|&i| v[i] >= level && v[i] >= v[i - 1] && v[i] >= v[i + 1])
 }
 
-fn median_of(v: &[f64]) -> f64 {
+pub(crate) fn median_of(v: &[f64]) -> f64 {
     if v.is_empty() {
         return 0.0;
     }
@@ -147,7 +147,7 @@ fn median_of(v: &[f64]) -> f64 {
 /// samples, so a fractional-sample offset between the model and the data
 /// cannot slip a sidelobe through a ripple null.
 /// Only `v[lo..hi]` is examined; the rest of the output is 0.
-fn above_direct(v: &[f64], model: &[f64], scale: f64, ratio: f64, lo: usize, hi: usize) -> Vec<f64> {
+pub(crate) fn above_direct(v: &[f64], model: &[f64], scale: f64, ratio: f64, lo: usize, hi: usize) -> Vec<f64> {
     let at = |i: usize| model.get(i).copied().unwrap_or(0.0);
     let mut out = vec![0.0; v.len()];
     for i in lo..hi.min(v.len()) {

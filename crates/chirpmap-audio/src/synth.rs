@@ -19,7 +19,7 @@ use crate::error::AudioError;
 use crate::wav::SampleFormat;
 use chirpmap_core::error::Num;
 use chirpmap_core::geometry::specular_point_on_circle;
-use chirpmap_core::scene::ListenerSpec;
+use chirpmap_core::scene::{ChirpSpec, ListenerSpec, SweepKind};
 use chirpmap_core::{Obstacle, Point, Scene, Shape};
 
 /// Most chirps one rendering plays (the paper plays 50).
@@ -61,6 +61,60 @@ pub struct SynthConfig {
     pub peak: f64,
     /// Period of the rows written to the poses CSV (s).
     pub pose_period_s: f64,
+    /// Direction of the chirps (issue 11): `"down"`, `"up"` or `"updown"`
+    /// (alternating, starting down); none = every chirp as `[chirp]` writes it.
+    pub pattern: Option<ChirpPattern>,
+}
+
+/// Sweep directions of a chirp train (issue 11, item 1). Alternating up and
+/// down sweeps separate range from Doppler in closed form (a linear chirp's
+/// Δd error is (f/k)·Δḋ, of opposite sign for the two directions).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ChirpPattern {
+    /// Every chirp sweeps from the higher frequency to the lower.
+    Down,
+    /// Every chirp sweeps from the lower frequency to the higher.
+    Up,
+    /// Chirps alternate down, up, down, …
+    Updown,
+}
+
+impl ChirpPattern {
+    /// Lower-case name, as a scene file spells it.
+    pub fn name(self) -> &'static str {
+        match self {
+            ChirpPattern::Down => "down",
+            ChirpPattern::Up => "up",
+            ChirpPattern::Updown => "updown",
+        }
+    }
+}
+
+impl std::str::FromStr for ChirpPattern {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "down" => Ok(ChirpPattern::Down),
+            "up" => Ok(ChirpPattern::Up),
+            "updown" => Ok(ChirpPattern::Updown),
+            o => Err(format!("unknown chirp pattern {o:?}: use down, up or updown")),
+        }
+    }
+}
+
+/// The cycle of chirps a pattern plays: chirp `i` of the train is
+/// `cycle[i % cycle.len()]`. `None` plays `chirp` as written.
+pub fn pattern_cycle(chirp: &ChirpSpec, pattern: Option<ChirpPattern>) -> Vec<ChirpSpec> {
+    let (hi, lo) = (chirp.f_start.max(chirp.f_end), chirp.f_start.min(chirp.f_end));
+    let down = ChirpSpec { f_start: hi, f_end: lo, ..chirp.clone() };
+    let up = ChirpSpec { f_start: lo, f_end: hi, ..chirp.clone() };
+    match pattern {
+        None => vec![chirp.clone()],
+        Some(ChirpPattern::Down) => vec![down],
+        Some(ChirpPattern::Up) => vec![up],
+        Some(ChirpPattern::Updown) => vec![down, up],
+    }
 }
 
 impl Default for SynthConfig {
@@ -77,6 +131,7 @@ impl Default for SynthConfig {
             noise_seed: 1,
             peak: 0.5,
             pose_period_s: 0.01,
+            pattern: None,
         }
     }
 }
@@ -259,27 +314,29 @@ pub fn synthesize(scene: &Scene, cfg: &SynthConfig) -> Result<Synthesized, Audio
         synth_memory_bytes(scene, cfg) as u128,
         "use fewer listeners, fewer or shorter chirps, or a longer synth.pose_period_s",
     )?;
-    let chirp = scene.chirp.build()?;
+    let cycle = pattern_cycle(&scene.chirp, cfg.pattern);
+    let sweeps: Vec<Box<dyn chirpmap_core::Sweep>> = cycle.iter().map(ChirpSpec::build).collect::<Result<_, _>>()?;
     let obstacles = scene.explicit_obstacles()?;
     let a = scene.world.speed_of_sound;
     if !(a.is_finite() && a > 0.0) {
         return Err(AudioError::InvalidParam { field: "world.speed_of_sound", reason: format!("{a}") });
     }
     let fs = f64::from(cfg.sample_rate_hz);
-    if chirp.f_start_hz().max(chirp.f_end_hz()) >= fs / 2.0 {
+    if scene.chirp.f_start.max(scene.chirp.f_end) >= fs / 2.0 {
         return Err(AudioError::InvalidParam {
             field: "chirp",
             reason: format!("the sweep exceeds the Nyquist frequency {} Hz", fs / 2.0),
         });
     }
-    let t_chirp = chirp.duration_s();
+    let t_chirp = scene.chirp.duration;
     // Linear sweeps (the paper's) get an inlined phase; others use the trait.
-    let linear = match scene.chirp.kind {
-        chirpmap_core::scene::SweepKind::Linear => {
-            Some((chirp.f_start_hz(), 0.5 * (chirp.f_end_hz() - chirp.f_start_hz()) / t_chirp))
-        }
-        chirpmap_core::scene::SweepKind::Exponential => None,
-    };
+    let linear: Vec<Option<(f64, f64)>> = cycle
+        .iter()
+        .map(|c| match c.kind {
+            SweepKind::Linear => Some((c.f_start, 0.5 * (c.f_end - c.f_start) / t_chirp)),
+            SweepKind::Exponential | SweepKind::Hyperbolic => None,
+        })
+        .collect();
     let period = t_chirp + cfg.gap_s;
     let total_s = cfg.start_s + cfg.chirps as f64 * period - cfg.gap_s + cfg.tail_s;
     let n = (total_s * fs).ceil() as usize;
@@ -327,9 +384,10 @@ pub fn synthesize(scene: &Scene, cfg: &SynthConfig) -> Result<Synthesized, Audio
                     if tau > t_chirp {
                         continue;
                     }
-                    let ph = match linear {
+                    let which = (idx as usize) % sweeps.len();
+                    let ph = match linear[which] {
                         Some((f0, half_rate)) => tau * (f0 + half_rate * tau),
-                        None => chirp.phase_cycles(tau),
+                        None => sweeps[which].phase_cycles(tau),
                     };
                     let sv = (std::f32::consts::TAU * (ph - ph.floor()) as f32).sin();
                     let g = if tau < cfg.taper_s || t_chirp - tau < cfg.taper_s {

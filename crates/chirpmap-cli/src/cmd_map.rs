@@ -9,7 +9,9 @@ use crate::output::Staged;
 use crate::plot::MapPlot;
 use crate::tables::fmt_score;
 use anyhow::{Context, Result, anyhow, bail};
-use chirpmap::{ChirpSpec, Echo, FrameParams, MapOptions, MappingParams, Obstacle, Point};
+use chirpmap::audio::doppler::{MovingOptions, WavMethod};
+use chirpmap::audio::synth::ChirpPattern;
+use chirpmap::{ChirpSpec, Echo, MapOptions, MappingParams, Obstacle, Point};
 use clap::Args;
 use serde_json::json;
 use std::path::{Path, PathBuf};
@@ -32,9 +34,14 @@ pub struct MapArgs {
     /// Speaker position X,Y (m) for --wav.
     #[arg(long, value_parser = parse_point, allow_hyphen_values = true)]
     pub speaker: Option<[f64; 2]>,
-    /// Echo extraction for --wav: gap (the paper's) or dechirp.
-    #[arg(long, default_value = "gap")]
-    pub method: chirpmap::Method,
+    /// Echo extraction for --wav: doppler (Doppler-corrected, for moving listeners; issue 11), gap (the
+    /// paper's, uncorrected) or dechirp (uncorrected).
+    #[arg(long, default_value = "doppler")]
+    pub method: WavMethod,
+    /// Sweep directions of the recording's chirps for --wav: down, up or updown (alternating, starting
+    /// down) [default: the --scene's [synth] pattern, else every chirp as --f-start/--f-end give it].
+    #[arg(long)]
+    pub pattern: Option<ChirpPattern>,
     /// Time between measurements for --wav (ms). Paper: 1, 10, 50 ms.
     #[arg(long, default_value_t = 10.0)]
     pub period_ms: f64,
@@ -78,14 +85,14 @@ pub struct MapArgs {
 
 pub fn run(args: &MapArgs) -> Result<()> {
     let started = Instant::now();
-    let (obstacles, base, chirp_base): (Vec<Obstacle>, MappingParams, ChirpSpec) = match &args.scene {
+    let (obstacles, base, chirp_base, pattern_base): (Vec<Obstacle>, MappingParams, ChirpSpec, _) = match &args.scene {
         Some(p) => {
-            let (scene, _) = load_scene(p)?;
+            let (scene, synth) = load_scene(p)?;
             let resolved = chirpmap::sim::resolve(&scene).map_err(|e| anyhow!("{}: {e}", p.display()))?;
             let chirp = ChirpSpec::from_scene(&resolved.scene);
-            (resolved.obstacles, resolved.scene.mapping, chirp)
+            (resolved.obstacles, resolved.scene.mapping, chirp, synth.pattern)
         }
-        None => (Vec::new(), MappingParams::default(), ChirpSpec::default()),
+        None => (Vec::new(), MappingParams::default(), ChirpSpec::default(), None),
     };
     let params = MappingParams {
         cell: args.cell.unwrap_or(base.cell),
@@ -104,9 +111,12 @@ pub fn run(args: &MapArgs) -> Result<()> {
     let inputs: Vec<&Path> =
         [&args.echoes, &args.wav, &args.poses, &args.scene].into_iter().flatten().map(PathBuf::as_path).collect();
     let mut out = Staged::dir(&args.out, &outputs, &inputs)?;
-    let (echoes, label) = match (&args.echoes, &args.wav) {
-        (Some(p), _) => (read_echoes(p)?, p.clone()),
-        (None, Some(w)) => (echoes_from_wav(args, w, args.chirp.spec(chirp_base))?, w.clone()),
+    let (echoes, rates, label) = match (&args.echoes, &args.wav) {
+        (Some(p), _) => (read_echoes(p)?, Vec::new(), p.clone()),
+        (None, Some(w)) => {
+            let (e, r) = echoes_from_wav(args, w, args.chirp.spec(chirp_base), args.pattern.or(pattern_base))?;
+            (e, r, w.clone())
+        }
         (None, None) => bail!("give --echoes or --wav"),
     };
     if echoes.is_empty() {
@@ -120,9 +130,7 @@ pub fn run(args: &MapArgs) -> Result<()> {
     // sources would otherwise cost more to draw than to map.
     let sources = one_per_cell(&sources, &map.grid.spec);
     if args.wav.is_some() {
-        let mut buf = Vec::new();
-        crate::echoes_csv::write_echoes(&mut buf, &echoes)?;
-        out.write("echoes.csv", buf)?;
+        out.write("echoes.csv", echoes_with_rates(&echoes, &rates)?)?;
     }
     let eval = args.scene.as_ref().map(|_| chirpmap::evaluate(&obstacles, &map));
     let mut title = format!("{} echoes, {} highlights", echoes.len(), map.highlights.len());
@@ -186,22 +194,60 @@ fn one_per_cell(points: &[Point], spec: &chirpmap::GridSpec) -> Vec<Point> {
         .collect()
 }
 
-/// `map --wav`: the facade's echoes of a moving listener's recording.
-fn echoes_from_wav(args: &MapArgs, wav: &Path, chirp: ChirpSpec) -> Result<Vec<Echo>> {
+/// The echoes CSV of docs/file-formats.md with, when any echo has one, the
+/// optional `delta_d_rate` column (Δḋ, m/s; issue 11) appended; readers
+/// ignore extra columns, so `map --echoes` reads it back unchanged.
+fn echoes_with_rates(echoes: &[Echo], rates: &[Option<f64>]) -> Result<Vec<u8>> {
+    let mut buf = Vec::new();
+    crate::echoes_csv::write_echoes(&mut buf, echoes)?;
+    if !rates.iter().any(Option::is_some) {
+        return Ok(buf);
+    }
+    let text = String::from_utf8(buf)?;
+    let mut out = String::with_capacity(text.len() + 12 * echoes.len());
+    for (i, line) in text.lines().enumerate() {
+        out.push_str(line);
+        match i.checked_sub(1) {
+            None => out.push_str(",delta_d_rate"),
+            Some(k) => {
+                out.push(',');
+                if let Some(Some(r)) = rates.get(k) {
+                    out.push_str(&r.to_string());
+                }
+            }
+        }
+        out.push('\n');
+    }
+    Ok(out.into_bytes())
+}
+
+/// `map --wav`: the facade's echoes of a moving listener's recording, and
+/// their path-difference rates.
+fn echoes_from_wav(
+    args: &MapArgs,
+    wav: &Path,
+    chirp: ChirpSpec,
+    pattern: Option<ChirpPattern>,
+) -> Result<(Vec<Echo>, Vec<Option<f64>>)> {
     let poses_path = args.poses.as_ref().context("--wav needs --poses")?;
     let [sx, sy] = args.speaker.context("--wav needs --speaker")?;
     let listener_id = u32::try_from(args.chirp.channel).context("--channel is too large")?;
     let poses = crate::poses_csv::read_poses(poses_path, listener_id)?;
-    let (prep, _) = prepare_wav(wav, args.chirp.channel, &chirp)?;
+    // The doppler method ranges any sweep through its inverse; the prepared
+    // channel does not depend on the shape (only its template, unused there).
+    let linear = ChirpSpec { kind: chirpmap::core::scene::SweepKind::Linear, ..chirp };
+    let (prep, _) =
+        prepare_wav(wav, args.chirp.channel, if args.method == WavMethod::Doppler { &linear } else { &chirp })?;
     poses.check_span(prep.duration_s).with_context(|| format!("poses for {}", wav.display()))?;
-    let params = FrameParams {
+    let opts = MovingOptions {
         method: args.method,
+        pattern,
         period_s: args.period_ms / 1000.0,
         frame_s: args.frame_ms.map(|m| m / 1000.0),
         speaker: Point::new(sx, sy),
         listener_id,
     };
-    let got = chirpmap::echoes_from_recording(&prep, &poses, &params)
+    let got = chirpmap::RecordingEchoes::from_moving(&prep, &chirp, &poses, &opts)
         .with_context(|| format!("{} with poses {}", wav.display(), poses_path.display()))?;
     if got.chirps_without_pose > 0 {
         let (p0, p1) = poses.span();
@@ -216,5 +262,5 @@ fn echoes_from_wav(args: &MapArgs, wav: &Path, chirp: ChirpSpec) -> Result<Vec<E
         );
     }
     eprintln!("{}: {} chirp(s), {} echo(es) by {}", wav.display(), got.chirps, got.echoes.len(), args.method.name());
-    Ok(got.echoes)
+    Ok((got.echoes, got.delta_d_rates_mps))
 }

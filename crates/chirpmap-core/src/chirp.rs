@@ -157,6 +157,55 @@ impl Sweep for ExponentialChirp {
     }
 }
 
+/// Hyperbolic (linear-period) sweep: the period `1/f` changes linearly in
+/// time, `1/f(t) = 1/f_start + (1/f_end − 1/f_start)·t/T`, the sweep of many
+/// bats' FM calls (Altes & Titlebaum 1970, "Bat signals as optimally Doppler
+/// tolerant waveforms"): a Doppler scaling of the whole call only shifts it in
+/// time, so a matched filter keeps its peak for a moving listener.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct HyperbolicChirp {
+    f_start_hz: f64,
+    f_end_hz: f64,
+    duration_s: f64,
+}
+
+impl HyperbolicChirp {
+    /// A linear-period sweep from `f_start_hz` to `f_end_hz` (Hz) over `duration_s` (s).
+    /// Errors under the same conditions as [`LinearChirp::new`].
+    pub fn new(f_start_hz: f64, f_end_hz: f64, duration_s: f64) -> Result<Self, CoreError> {
+        validate(f_start_hz, f_end_hz, duration_s)?;
+        Ok(Self { f_start_hz, f_end_hz, duration_s })
+    }
+    /// Rate of change of the period, (1/f_end − 1/f_start)/T (s/s).
+    fn c(&self) -> f64 {
+        (1.0 / self.f_end_hz - 1.0 / self.f_start_hz) / self.duration_s
+    }
+}
+
+impl Sweep for HyperbolicChirp {
+    fn f_start_hz(&self) -> f64 {
+        self.f_start_hz
+    }
+    fn f_end_hz(&self) -> f64 {
+        self.f_end_hz
+    }
+    fn duration_s(&self) -> f64 {
+        self.duration_s
+    }
+    fn freq_at(&self, t_s: f64) -> Option<f64> {
+        (0.0..=self.duration_s).contains(&t_s).then(|| 1.0 / (1.0 / self.f_start_hz + self.c() * t_s))
+    }
+    fn time_of(&self, f_hz: f64) -> Option<f64> {
+        let (lo, hi) = min_max(self.f_start_hz, self.f_end_hz);
+        (lo..=hi).contains(&f_hz).then(|| (1.0 / f_hz - 1.0 / self.f_start_hz) / self.c())
+    }
+    fn phase_cycles(&self, t_s: f64) -> f64 {
+        // ∫ dt / (p0 + c·t) = ln(1 + c·t/p0) / c, p0 = 1/f_start.
+        let c = self.c();
+        (c * t_s * self.f_start_hz).ln_1p() / c
+    }
+}
+
 fn min_max(a: f64, b: f64) -> (f64, f64) {
     if a < b { (a, b) } else { (b, a) }
 }
@@ -202,13 +251,46 @@ mod tests {
         assert!((c.delta_t_s(f_dir, f_ref).unwrap() - 0.01).abs() < 1e-9);
     }
 
+    #[test]
+    fn hyperbolic_period_is_linear_in_time() {
+        // Hand computation: 1/f goes from 0.1 ms to 5 ms over 0.25 s, so at
+        // t = 0.125 s the period is 2.55 ms (f = 392.157 Hz).
+        let c = HyperbolicChirp::new(10_000.0, 200.0, 0.25).unwrap();
+        assert!((c.freq_at(0.125).unwrap() - 1.0 / 2.55e-3).abs() < 1e-9);
+        assert!((c.freq_at(0.25).unwrap() - 200.0).abs() < 1e-9);
+        assert!((c.time_of(1.0 / 2.55e-3).unwrap() - 0.125).abs() < 1e-12);
+        assert!(HyperbolicChirp::new(200.0, 0.0, 1.0).is_err());
+    }
+
+    /// The phase is the integral of the frequency: a central difference of
+    /// `phase_cycles` (the naive oracle) equals `freq_at`.
+    #[test]
+    fn phases_differentiate_to_frequencies() {
+        let sweeps: [Box<dyn Sweep>; 3] = [
+            Box::new(LinearChirp::new(10_000.0, 200.0, 0.25).unwrap()),
+            Box::new(ExponentialChirp::new(10_000.0, 200.0, 0.25).unwrap()),
+            Box::new(HyperbolicChirp::new(200.0, 10_000.0, 0.25).unwrap()),
+        ];
+        for s in &sweeps {
+            assert_eq!(s.phase_cycles(0.0), 0.0);
+            for k in 1..50 {
+                let t = 0.25 * f64::from(k) / 50.0;
+                let h = 1e-6;
+                let num = (s.phase_cycles(t + h) - s.phase_cycles(t - h)) / (2.0 * h);
+                let f = s.freq_at(t).unwrap();
+                assert!((num - f).abs() < 1e-5 * f, "{s:?} at {t}: {num} vs {f}");
+            }
+        }
+    }
+
     proptest! {
         #[test]
         fn inverse_round_trips(fs in 100.0..20_000.0f64, fe in 100.0..20_000.0f64, t in 0.05..2.0f64, u in 0.0..1.0f64) {
             prop_assume!((fs - fe).abs() > 1.0);
-            let sweeps: [Box<dyn Sweep>; 2] = [
+            let sweeps: [Box<dyn Sweep>; 3] = [
                 Box::new(LinearChirp::new(fs, fe, t).unwrap()),
                 Box::new(ExponentialChirp::new(fs, fe, t).unwrap()),
+                Box::new(HyperbolicChirp::new(fs, fe, t).unwrap()),
             ];
             for s in &sweeps {
                 let time = u * t;

@@ -111,6 +111,8 @@ pub enum SweepKind {
     Linear,
     /// Exponential in time, [`ExponentialChirp`].
     Exponential,
+    /// Linear period (hyperbolic frequency), [`crate::chirp::HyperbolicChirp`]: bats' Doppler-tolerant sweep.
+    Hyperbolic,
 }
 
 /// The emitted chirp, as written in a scene file.
@@ -139,6 +141,9 @@ impl ChirpSpec {
         Ok(match self.kind {
             SweepKind::Linear => Box::new(LinearChirp::new(self.f_start, self.f_end, self.duration)?),
             SweepKind::Exponential => Box::new(ExponentialChirp::new(self.f_start, self.f_end, self.duration)?),
+            SweepKind::Hyperbolic => {
+                Box::new(crate::chirp::HyperbolicChirp::new(self.f_start, self.f_end, self.duration)?)
+            }
         })
     }
 }

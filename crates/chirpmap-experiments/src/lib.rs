@@ -9,6 +9,7 @@
 
 #![warn(missing_docs)]
 
+pub mod doppler;
 pub mod driver;
 pub mod error;
 pub mod maps;

@@ -2,9 +2,13 @@
 //! listener's recording → echoes for a map.
 
 use crate::error::{Error, Result};
+use chirpmap_audio::doppler::{
+    DopplerParams, MovingOptions, WavMethod, bank_scales, detect_moving, direct_rate_range, doppler_echoes,
+};
 use chirpmap_audio::filter::paper_highpass;
 use chirpmap_audio::ranging::{ChirpResult, RangedChirp, gap_floor_m, range_signal};
 use chirpmap_audio::stats::{median, median_ci95};
+use chirpmap_audio::synth::pattern_cycle;
 use chirpmap_audio::{ChirpTemplate, Method, RangeLimits, wall_distance_m};
 use chirpmap_core::scene::SweepKind;
 use chirpmap_core::{Echo, LinearChirp, Point, Scene};
@@ -70,7 +74,20 @@ pub struct Prepared {
 }
 
 /// Validates the chirp against the channel and prepares it for ranging.
-pub fn prepare(mut x: Vec<f32>, sample_rate_hz: f64, chirp: &ChirpSpec) -> Result<Prepared> {
+pub fn prepare(x: Vec<f32>, sample_rate_hz: f64, chirp: &ChirpSpec) -> Result<Prepared> {
+    prepare_inner(x, sample_rate_hz, chirp, false)
+}
+
+impl Prepared {
+    /// [`prepare`] for a moving listener's recording: any sweep shape is
+    /// accepted (the Doppler method ranges through the sweep's inverse; the
+    /// template then only carries the band and duration).
+    pub fn for_moving(x: Vec<f32>, sample_rate_hz: f64, chirp: &ChirpSpec) -> Result<Prepared> {
+        prepare_inner(x, sample_rate_hz, chirp, true)
+    }
+}
+
+fn prepare_inner(mut x: Vec<f32>, sample_rate_hz: f64, chirp: &ChirpSpec, any_sweep: bool) -> Result<Prepared> {
     let (lo, hi) = SPEED_OF_SOUND_RANGE_MPS;
     let a = chirp.speed_of_sound_mps;
     if !(a.is_finite() && (lo..=hi).contains(&a)) {
@@ -82,7 +99,7 @@ pub fn prepare(mut x: Vec<f32>, sample_rate_hz: f64, chirp: &ChirpSpec) -> Resul
     if x.iter().all(|v| *v == 0.0) {
         return Err(Error::Invalid("the channel is silent (every sample is zero)".into()));
     }
-    if chirp.kind != SweepKind::Linear {
+    if chirp.kind != SweepKind::Linear && !any_sweep {
         return Err(Error::Field {
             field: "sweep",
             reason: format!("{:?} sweeps are not ranged by this pipeline; it needs a linear chirp", chirp.kind),
@@ -366,6 +383,9 @@ pub struct RecordingEchoes {
     pub chirps: usize,
     /// Chirps skipped because the poses do not cover them.
     pub chirps_without_pose: usize,
+    /// Per echo (same order), the estimated rate of its path difference
+    /// Δḋ (m/s) when the method estimates it (issue 11: `delta_d_rate`).
+    pub delta_d_rates_mps: Vec<Option<f64>>,
 }
 
 /// Detects the chirps, then makes one measurement per period at the
@@ -394,7 +414,86 @@ pub fn echoes_from_recording(prep: &Prepared, poses: &PoseTrack, params: &FrameP
     }
     let pose_at = |t: f64| poses.at(t);
     let echoes = chirpmap_audio::frames::extract_echoes(&prep.x, &prep.tpl, &prep.lim, &dets, &pose_at, params)?;
-    Ok(RecordingEchoes { echoes, chirps: dets.len(), chirps_without_pose: dets.len() - covered })
+    let delta_d_rates_mps = vec![None; echoes.len()];
+    Ok(RecordingEchoes { echoes, chirps: dets.len(), chirps_without_pose: dets.len() - covered, delta_d_rates_mps })
+}
+
+impl RecordingEchoes {
+    /// Echoes of a moving listener's recording by any [`MovingOptions`]
+    /// method (issue 11): `gap` and `dechirp` as [`echoes_from_recording`]
+    /// (one sweep direction), `doppler` with template-bank detection and the
+    /// range–Doppler correction of `chirpmap_audio::doppler`, for any
+    /// pattern (alternating up/down sweeps give Δḋ in closed form).
+    pub fn from_moving(
+        prep: &Prepared,
+        chirp: &ChirpSpec,
+        poses: &PoseTrack,
+        opts: &MovingOptions,
+    ) -> Result<RecordingEchoes> {
+        let scene_chirp = chirpmap_core::scene::ChirpSpec {
+            f_start: chirp.f_start_hz,
+            f_end: chirp.f_end_hz,
+            duration: chirp.duration_s,
+            kind: chirp.kind,
+        };
+        let cycle = pattern_cycle(&scene_chirp, opts.pattern);
+        if opts.method != WavMethod::Doppler {
+            if cycle.len() != 1 || chirp.kind != SweepKind::Linear {
+                return Err(Error::Field {
+                    field: "method",
+                    reason: format!(
+                        "{} ranges one linear sweep direction; use doppler for {} patterns or {:?} sweeps",
+                        opts.method.name(),
+                        opts.pattern.map_or("this", |p| p.name()),
+                        chirp.kind
+                    ),
+                });
+            }
+            let c = &cycle[0];
+            let tpl = ChirpTemplate::new(LinearChirp::new(c.f_start, c.f_end, c.duration)?, prep.sample_rate_hz)?;
+            let one = Prepared { tpl, ..prep.clone() };
+            let params = FrameParams {
+                method: if opts.method == WavMethod::Gap { Method::Gap } else { Method::Dechirp },
+                period_s: opts.period_s,
+                frame_s: opts.frame_s,
+                speaker: opts.speaker,
+                listener_id: opts.listener_id,
+            };
+            return echoes_from_recording(&one, poses, &params);
+        }
+        let sweeps: Vec<Box<dyn chirpmap_core::Sweep>> =
+            cycle.iter().map(chirpmap_core::scene::ChirpSpec::build).collect::<Result<_, _>>()?;
+        let refs: Vec<&dyn chirpmap_core::Sweep> = sweeps.iter().map(|b| b.as_ref()).collect();
+        let a = prep.lim.speed_of_sound_mps;
+        let scales = bank_scales(direct_rate_range(poses.rows(), opts.speaker), a);
+        let mut cache = chirpmap_audio::spectrum::FftCache::default();
+        let dets = detect_moving(&prep.x, prep.sample_rate_hz, &refs, &scales, &mut cache, prep.lim.max_delta_d_m / a)?;
+        let fs = prep.sample_rate_hz;
+        let covered = dets.iter().filter(|d| poses.at(d.detection.onset_sample as f64 / fs).is_some()).count();
+        if covered == 0 {
+            let (p0, p1) = poses.span();
+            return Err(Error::Invalid(format!(
+                "the poses span {p0:.3}–{p1:.3} s but none of the recording's {} chirp(s) (0–{:.3} s) has a pose \
+                 (wrong poses file?)",
+                dets.len(),
+                prep.duration_s
+            )));
+        }
+        let params = DopplerParams {
+            period_s: opts.period_s,
+            frame_s: opts.frame_s,
+            speaker: opts.speaker,
+            listener_id: opts.listener_id,
+        };
+        let pose_at = |t: f64| poses.at(t);
+        let got = doppler_echoes(&prep.x, fs, &refs, &prep.lim, &dets, &pose_at, &params)?;
+        Ok(RecordingEchoes {
+            echoes: got.iter().map(|m| m.echo).collect(),
+            delta_d_rates_mps: got.iter().map(|m| m.delta_d_rate_mps).collect(),
+            chirps: dets.len(),
+            chirps_without_pose: dets.len() - covered,
+        })
+    }
 }
 
 #[cfg(test)]

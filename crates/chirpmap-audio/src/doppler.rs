@@ -1,0 +1,678 @@
+//! Doppler-corrected ranging for moving listeners (issue 11).
+//!
+//! A listener moving at `v` hears path `i` (length `rᵢ(t)`) as
+//! `s(t − rᵢ(t)/a)`: every path's sweep is time-scaled by `1 − ṙᵢ/a`, so the
+//! heard frequency is `f(τᵢ)·(1 − ṙᵢ/a)` with `τᵢ = t − rᵢ/a` the emission
+//! time. With a linear chirp of rate `k`, the frequency gap of the paper's
+//! Eq. 2 then reads `Δd + (f/k)·Δḋ` instead of `Δd` (range–Doppler coupling,
+//! paper §VI; Δḋ = Ṙ − Ḋ is the rate of the path difference). This module:
+//!
+//! 1. **Detects** chirps with a small bank of Doppler-scaled templates
+//!    (`s(σt)`, σ = 1 − Ḋ/a over the radial speeds the poses show, 0.5 m/s
+//!    apart), so a listener at 10 m/s (the paper's speed) loses no chirp: an
+//!    unscaled template's normalised correlation falls to 0.2 at 2 m/s and
+//!    0.1 at 10 m/s (measured for the 0.25 s 10 → 0.2 kHz chirp).
+//! 2. **Dechirps each frame along the direct path**: the reference is the
+//!    sweep's phase at the direct sound's exact emission time
+//!    `τ_D(t) = t − D(t)/a − E` (D from the poses, E from the detection), so
+//!    the direct sound is a tone at 0 Hz whatever the listener's speed and a
+//!    reflection a tone at `f_R − f_D`, the heard frequencies' difference.
+//! 3. **Inverts the heard frequencies exactly**: `f(τ_D) = f_D/(1 − Ḋ/a)`,
+//!    `f(τ_R) = f_R/(1 − (Ḋ + Δḋ)/a)`, `Δd = a·(τ_D − τ_R)` through the
+//!    sweep's inverse (any monotonic sweep). The direct path's rate Ḋ is
+//!    known exactly from the poses; the reflected path's rate is Ḋ + Δḋ.
+//! 4. **Estimates Δḋ from the echo's own track** and iterates: over a group
+//!    of frames the corrected Δd must follow `Δd₀ + Δḋ·(t − t₀)`. Linearised
+//!    about the current Δḋ′, `Δdᵢ(Δḋ) ≈ mᵢ + hᵢ·(Δḋ − Δḋ′)` with
+//!    `hᵢ = ∂Δdᵢ/∂Δḋ ≈ −fᵢ/kᵢ`, so `yᵢ = mᵢ − hᵢΔḋ′` is linear in
+//!    `gᵢ = tᵢ − t₀ − hᵢ` with slope Δḋ; the median of the pairwise slopes
+//!    (Theil 1950, Sen 1968) is robust to a stray frame. Within one linear
+//!    sweep `g` advances twice as fast as `t` (the gap track's slope is 2Δḋ).
+//!    With alternating up and down sweeps, `h` changes sign between the two
+//!    chirps of a pair and each cross pair gives Δḋ (and then Δd) in closed
+//!    form: `Δḋ = (m_up − m_down)/(g_up − g_down)`.
+//! 5. Frames whose corrected Δd strays from their group's line by more than
+//!    [`TRACK_GATE_M`] (or 5 robust σ) are dropped as spurious: within a
+//!    quarter second a real reflector's Δd moves along a line.
+
+use crate::detect::{ChirpTemplate, DEFAULT_TAPER_S, Detection, detect_chirps, taper_gain};
+use crate::error::AudioError;
+use crate::ranging::{RangeLimits, above_direct, first_strong_peak, median_of};
+use crate::spectrum::{FftCache, hann, peak_in};
+use chirpmap_core::error::Num;
+use chirpmap_core::{Echo, LinearChirp, Point, Sweep};
+use rustfft::num_complex::Complex32;
+
+/// Spacing of the template bank in radial speed (m/s). An unscaled 0.25 s
+/// 10 → 0.2 kHz template keeps a normalised correlation of 0.62 with a chirp
+/// heard at 0.25 m/s (measured; 0.45 at 0.5 m/s, 0.28 at 1 m/s), so a bank
+/// 0.5 m/s apart never falls below about 0.6 of the matched peak.
+pub const BANK_STEP_MPS: f64 = 0.5;
+
+/// Largest radial speed the bank covers (m/s): well above the paper's 10 m/s.
+pub const MAX_RADIAL_SPEED_MPS: f64 = 40.0;
+
+/// Frames whose corrected Δd is further than this from their group's robust
+/// line (and 5 robust σ) are dropped as spurious (ours).
+pub const TRACK_GATE_M: f64 = 0.15;
+
+/// Fewest frames a group needs for its own Δḋ estimate; smaller groups take
+/// the nearest group's.
+pub const MIN_GROUP_FRAMES: usize = 5;
+
+/// A detected chirp of a moving listener's recording.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MovingDetection {
+    /// The matched-filter detection of the best-matching template.
+    pub detection: Detection,
+    /// Index of the chirp's sweep in the pattern's cycle (down/up).
+    pub sweep: usize,
+    /// Time scale σ = 1 − Ḋ/a of the best-matching template.
+    pub scale: f64,
+}
+
+/// A template of `sweep` heard time-scaled by `scale` (σ = 1 − Ḋ/a):
+/// `taper(σt)·sin(2πφ(σt))` for `t < T/σ`. `descriptor` names the band and
+/// duration in messages (detection uses only the samples).
+pub fn scaled_template(
+    sweep: &dyn Sweep,
+    descriptor: LinearChirp,
+    sample_rate_hz: f64,
+    scale: f64,
+) -> Result<ChirpTemplate, AudioError> {
+    if !(scale.is_finite() && scale > 0.5 && scale < 1.5) {
+        return Err(AudioError::InvalidParam {
+            field: "doppler scale",
+            reason: format!("{} is not near 1", Num(scale)),
+        });
+    }
+    let mut tpl = ChirpTemplate::new(descriptor, sample_rate_hz)?;
+    let t_s = sweep.duration_s();
+    let n = ((t_s / scale) * sample_rate_hz).round() as usize;
+    tpl.real = (0..n)
+        .map(|i| {
+            let tau = scale * i as f64 / sample_rate_hz;
+            let ph = sweep.phase_cycles(tau);
+            (taper_gain(tau, t_s, DEFAULT_TAPER_S) * (std::f64::consts::TAU * (ph - ph.floor())).sin()) as f32
+        })
+        .collect();
+    tpl.mix = Vec::new();
+    Ok(tpl)
+}
+
+/// Smallest and largest rate of the direct path length Ḋ (m/s) over a pose
+/// track (`(t, position)` rows), for sizing the template bank.
+pub fn direct_rate_range(poses: &[(f64, Point)], speaker: Point) -> (f64, f64) {
+    let mut lo = 0.0f64;
+    let mut hi = 0.0f64;
+    for w in poses.windows(2) {
+        let dt = w[1].0 - w[0].0;
+        if dt > 0.0 {
+            let r = (speaker.dist(w[1].1) - speaker.dist(w[0].1)) / dt;
+            if r.is_finite() {
+                lo = lo.min(r);
+                hi = hi.max(r);
+            }
+        }
+    }
+    (lo.max(-MAX_RADIAL_SPEED_MPS), hi.min(MAX_RADIAL_SPEED_MPS))
+}
+
+/// The bank's time scales σ = 1 − Ḋ/a for Ḋ in `rate_range` (m/s, widened
+/// by half a step), [`BANK_STEP_MPS`] apart, always including σ = 1.
+pub fn bank_scales(rate_range: (f64, f64), speed_of_sound_mps: f64) -> Vec<f64> {
+    let lo = (rate_range.0.min(0.0) - 0.5 * BANK_STEP_MPS).max(-MAX_RADIAL_SPEED_MPS);
+    let hi = (rate_range.1.max(0.0) + 0.5 * BANK_STEP_MPS).min(MAX_RADIAL_SPEED_MPS);
+    let k_lo = (lo / BANK_STEP_MPS).floor() as i64;
+    let k_hi = (hi / BANK_STEP_MPS).ceil() as i64;
+    (k_lo..=k_hi).map(|k| 1.0 - k as f64 * BANK_STEP_MPS / speed_of_sound_mps).collect()
+}
+
+/// Detects the chirps of every sweep in `sweeps` (the pattern's cycle) with
+/// a template bank over `scales`; overlapping detections (less than half a
+/// chirp apart) keep the best normalised correlation. Errors only when no
+/// template finds a chirp (the error of the unscaled first sweep).
+pub fn detect_moving(
+    x: &[f32],
+    sample_rate_hz: f64,
+    sweeps: &[&dyn Sweep],
+    scales: &[f64],
+    cache: &mut FftCache,
+    max_echo_delay_s: f64,
+) -> Result<Vec<MovingDetection>, AudioError> {
+    let mut all = Vec::new();
+    let mut first_err = None;
+    for (si, sweep) in sweeps.iter().enumerate() {
+        let descr = LinearChirp::new(sweep.f_start_hz(), sweep.f_end_hz(), sweep.duration_s())?;
+        for &scale in scales {
+            let tpl = scaled_template(*sweep, descr, sample_rate_hz, scale)?;
+            match detect_chirps(x, &tpl, cache, max_echo_delay_s) {
+                Ok(d) => all.extend(d.into_iter().map(|detection| MovingDetection { detection, sweep: si, scale })),
+                Err(e) => {
+                    if first_err.is_none() || (scale - 1.0).abs() < 1e-12 && si == 0 {
+                        first_err = Some(e);
+                    }
+                }
+            }
+        }
+    }
+    if all.is_empty() {
+        return Err(first_err.unwrap_or(AudioError::NoChirp { ratio: 0.0, need: crate::detect::MIN_PEAK_RATIO }));
+    }
+    let half = sweeps.iter().map(|s| s.duration_s()).fold(f64::INFINITY, f64::min) * sample_rate_hz * 0.5;
+    all.sort_by(|a, b| b.detection.ncc.total_cmp(&a.detection.ncc));
+    let mut kept: Vec<MovingDetection> = Vec::new();
+    for d in all {
+        let clash =
+            kept.iter().any(|k| (k.detection.onset_sample as f64 - d.detection.onset_sample as f64).abs() < half);
+        if !clash {
+            kept.push(d);
+        }
+    }
+    kept.sort_by_key(|d| d.detection.onset_sample);
+    Ok(kept)
+}
+
+/// One echo of a moving listener, with the rate of its path difference.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MovingEcho {
+    /// The echo (Δd corrected for Doppler), at the listener's pose mid-frame.
+    pub echo: Echo,
+    /// Estimated rate of the path difference Δḋ = Ṙ − Ḋ (m/s); `None` when
+    /// the method does not estimate it.
+    pub delta_d_rate_mps: Option<f64>,
+    /// Index of the chirp among the detections.
+    pub chirp: usize,
+}
+
+/// How [`doppler_echoes`] cuts the chirps into frames.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DopplerParams {
+    /// Time between measurements (s, emission time of the direct sound).
+    pub period_s: f64,
+    /// Frame length (s); `None`: 4·sqrt(T/B), the dechirp method's.
+    pub frame_s: Option<f64>,
+    /// Speaker position (m).
+    pub speaker: Point,
+    /// Listener id written into the echoes.
+    pub listener_id: u32,
+}
+
+/// One frame's measurement before the Doppler correction.
+#[derive(Debug, Clone, Copy)]
+struct FrameMeas {
+    chirp: usize,
+    t_mid_s: f64,
+    pos: Point,
+    /// Heard direct and reflected frequencies (Hz).
+    f_direct_hz: f64,
+    f_reflected_hz: f64,
+    /// Direct path rate Ḋ (m/s) at mid-frame, from the poses.
+    d_rate_mps: f64,
+    level: f64,
+}
+
+/// Index of 0 Hz in a frame's re-indexed spectrum.
+const OFF: usize = 8;
+
+/// `Δd` of one frame for a path-difference rate `dd_rate` (m/s): the heard
+/// frequencies mapped back to emission times through the sweep's inverse
+/// (extrapolated linearly beyond the band for linear sweeps).
+fn frame_delta_d(m: &FrameMeas, sweep: &dyn Sweep, a: f64, dd_rate: f64) -> Option<f64> {
+    let sd = 1.0 - m.d_rate_mps / a;
+    let sr = 1.0 - (m.d_rate_mps + dd_rate) / a;
+    if sd <= 0.0 || sr <= 0.0 {
+        return None;
+    }
+    let (fd, fr) = (m.f_direct_hz / sd, m.f_reflected_hz / sr);
+    let t_of = |f: f64| {
+        sweep.time_of(f).or_else(|| {
+            // Linear extrapolation from the nearer end (a reflection heard
+            // just beyond the band near the sweep's ends).
+            let t_end = sweep.duration_s();
+            let (f0, f1) = (sweep.f_start_hz(), sweep.f_end_hz());
+            let slope = (f1 - f0) / t_end;
+            Some(if (f - f0).abs() < (f - f1).abs() { (f - f0) / slope } else { t_end + (f - f1) / slope })
+        })
+    };
+    Some(a * (t_of(fd)? - t_of(fr)?))
+}
+
+/// Theil–Sen slope of `(g, y)` over the pairs `ok(i, j)` with `|g_j − g_i|`
+/// at least `min_dg`; `None` without such a pair.
+fn theil_sen(g: &[f64], y: &[f64], min_dg: f64, ok: &dyn Fn(usize, usize) -> bool) -> Option<f64> {
+    let mut s = Vec::new();
+    for i in 0..g.len() {
+        for j in i + 1..g.len() {
+            let dg = g[j] - g[i];
+            if dg.abs() >= min_dg && ok(i, j) {
+                s.push((y[j] - y[i]) / dg);
+            }
+        }
+    }
+    (!s.is_empty()).then(|| median_of(&s))
+}
+
+/// Echoes of every frame of every detected chirp, Doppler-corrected (see the
+/// module docs). `sweeps` is the pattern's cycle (as in [`detect_moving`]),
+/// `pose_at(t)` the listener's position at recording time `t` (s).
+pub fn doppler_echoes(
+    x: &[f32],
+    sample_rate_hz: f64,
+    sweeps: &[&dyn Sweep],
+    lim: &RangeLimits,
+    dets: &[MovingDetection],
+    pose_at: &dyn Fn(f64) -> Option<Point>,
+    p: &DopplerParams,
+) -> Result<Vec<MovingEcho>, AudioError> {
+    let fs = sample_rate_hz;
+    let a = lim.speed_of_sound_mps;
+    let bad = |field: &'static str, reason: String| AudioError::InvalidParam { field, reason };
+    if !(p.period_s.is_finite() && p.period_s * fs >= 1.0) {
+        return Err(bad("period", format!("must be at least one sample, got {} s", Num(p.period_s))));
+    }
+    let Some(first) = sweeps.first() else { return Err(bad("chirp", "no sweep given".into())) };
+    let t_chirp = first.duration_s();
+    let band = (first.f_start_hz() - first.f_end_hz()).abs();
+    let frame = match p.frame_s {
+        Some(s) => (s * fs).round(),
+        None => (4.0 * fs * (t_chirp / band).sqrt()).round(),
+    };
+    let n_chirp = t_chirp * fs;
+    if !(frame >= 16.0 && frame < n_chirp) {
+        return Err(bad("frame", format!("{} samples: must be >= 16 and shorter than the chirp", Num(frame))));
+    }
+    let frame = frame as usize;
+    let planned = (t_chirp / p.period_s).ceil() * dets.len() as f64;
+    if planned > crate::frames::MAX_MEASUREMENTS as f64 {
+        return Err(bad("period", format!("about {} measurements exceed the cap", Num(planned))));
+    }
+    let nfft = (frame * 4).next_power_of_two();
+    let bin_hz = fs / nfft as f64;
+    let win = hann(frame);
+    // Model of the direct sound alone: the window's own spectrum at 0 Hz.
+    let model = {
+        let mut cache = FftCache::default();
+        let mut buf = vec![Complex32::new(0.0, 0.0); nfft];
+        for (b, w) in buf.iter_mut().zip(&win) {
+            b.re = *w;
+        }
+        cache.forward(&mut buf);
+        let mut m = vec![0.0f64; nfft / 2];
+        for (j, v) in m.iter_mut().enumerate() {
+            if j >= OFF {
+                *v = f64::from(buf[j - OFF].norm());
+            } else {
+                *v = f64::from(buf[nfft - (OFF - j)].norm());
+            }
+        }
+        m
+    };
+    let mut cache = FftCache::default();
+    let mut meas: Vec<FrameMeas> = Vec::new();
+    let f_max = sweeps.iter().map(|s| s.f_start_hz().max(s.f_end_hz())).fold(0.0, f64::max);
+    let mut buf = vec![Complex32::new(0.0, 0.0); nfft];
+    for (ci, d) in dets.iter().enumerate() {
+        let Some(sweep) = sweeps.get(d.sweep) else { continue };
+        let t_on = d.detection.onset_sample as f64 / fs;
+        let Some(p_on) = pose_at(t_on) else { continue };
+        // Emission start of this chirp on the recorder's clock, refined on
+        // the direct path's exact (pose-warped) waveform.
+        let e_s = refine_emission(x, fs, *sweep, t_on - p.speaker.dist(p_on) / a, pose_at, p.speaker, a);
+        let rate_mid = (sweep.f_end_hz() - sweep.f_start_hz()) / t_chirp;
+        let dir = if rate_mid < 0.0 { 1.0 } else { -1.0 };
+        // The beat of the furthest reflection, widened by the largest
+        // Doppler term f·2v/a at the fastest radial speed.
+        let beat_max = rate_mid.abs() * lim.max_delta_d_m / a + f_max * 2.0 * MAX_RADIAL_SPEED_MPS.min(20.0) / a;
+        let kmax = ((beat_max / bin_hz).ceil() as usize + OFF + 2).min(nfft / 2);
+        // The chirp's analytic signal (negative frequencies removed: the
+        // direct sound's mirror at −2f_D would otherwise read as a reflection
+        // of an up-sweep's low end), over its reception span and a frame
+        // either side, so that the transform's edges stay out of the frames.
+        let (z0, z) = {
+            let end_s = e_s + t_chirp + p.speaker.dist(pose_at(e_s + t_chirp).unwrap_or(p_on)) / a;
+            let s0 = (t_on * fs - 2.0 * frame as f64).max(0.0) as usize;
+            let s1 = ((end_s * fs) as usize + 2 * frame).min(x.len());
+            if s1 <= s0 + frame {
+                continue;
+            }
+            (s0, analytic(&mut cache, &x[s0..s1]))
+        };
+        let mut tau0 = 0.0;
+        while tau0 + frame as f64 / fs <= t_chirp {
+            let this_tau = tau0;
+            tau0 += p.period_s;
+            // Reception time at which the direct sound emitted at `this_tau` arrives.
+            let mut t = e_s + this_tau + p.speaker.dist(p_on) / a;
+            let mut ok = true;
+            for _ in 0..4 {
+                match pose_at(t) {
+                    Some(q) => t = e_s + this_tau + p.speaker.dist(q) / a,
+                    None => ok = false,
+                }
+            }
+            if !ok {
+                continue;
+            }
+            let n0 = (t * fs).round();
+            if n0 < 0.0 || n0 as usize + frame > x.len() {
+                continue;
+            }
+            let n0 = n0 as usize;
+            if n0 < z0 || n0 + frame > z0 + z.len() {
+                continue;
+            }
+            let tau_at = |n: usize| -> Option<f64> {
+                let tt = n as f64 / fs;
+                Some(tt - p.speaker.dist(pose_at(tt)?) / a - e_s)
+            };
+            let mut good = true;
+            for (i, b) in buf.iter_mut().enumerate() {
+                if i < frame {
+                    let Some(tau) = tau_at(n0 + i) else {
+                        good = false;
+                        break;
+                    };
+                    let ph = sweep.phase_cycles(tau);
+                    let ang = std::f64::consts::TAU * (ph - ph.floor());
+                    let mix = Complex32::new(ang.cos() as f32, -ang.sin() as f32);
+                    *b = mix * z[n0 - z0 + i] * win[i];
+                } else {
+                    *b = Complex32::new(0.0, 0.0);
+                }
+            }
+            if !good {
+                continue;
+            }
+            let (Some(tau_a), Some(tau_b), Some(tau_m)) = (tau_at(n0), tau_at(n0 + frame), tau_at(n0 + frame / 2))
+            else {
+                continue;
+            };
+            let sigma_d = (tau_b - tau_a) / (frame as f64 / fs);
+            let Some(f_em) = sweep.freq_at(tau_m.clamp(0.0, t_chirp)) else { continue };
+            let f_pred = f_em * sigma_d;
+            cache.forward(&mut buf);
+            let v: Vec<f64> = (0..kmax)
+                .map(|j| {
+                    let f = (j as isize - OFF as isize) * if dir > 0.0 { 1 } else { -1 };
+                    f64::from(buf[f.rem_euclid(nfft as isize) as usize].norm())
+                })
+                .collect();
+            let Some((pd, vd)) = peak_in(&v, OFF - 4, OFF + 5) else { continue };
+            let lo = ((pd + (rate_mid.abs() * lim.min_delta_d_m / a) / bin_hz).ceil() as usize).max(OFF + 3);
+            // Only beats a reflection of this chirp can make: it left at
+            // τ_D − Δd/a ≥ 0 (so Δd ≤ a·τ_D), shifted by at most f·2|v|/a
+            // (|Δḋ| ≤ 2|v|, v the listener's speed). Beyond, the band holds
+            // only noise (or nothing, below an up-sweep's start), and a
+            // floor taken there would let noise through.
+            let t_mid0 = (n0 as f64 + 0.5 * frame as f64) / fs;
+            let speed = match (pose_at(t_mid0 - 0.005), pose_at(t_mid0 + 0.005)) {
+                (Some(q0), Some(q1)) => q0.dist(q1) / 0.01,
+                _ => MAX_RADIAL_SPEED_MPS,
+            };
+            let dd_reach = lim.max_delta_d_m.min(a * tau_b.max(0.0));
+            let beat_reach = rate_mid.abs() * dd_reach / a + f_pred * 2.0 * (speed + 0.5) / a;
+            let hi = ((pd + beat_reach / bin_hz).ceil() as usize + 2).min(v.len());
+            if lo + 3 >= hi {
+                continue;
+            }
+            let floor = 6.0 * median_of(&v[lo..hi]);
+            let masked = above_direct(&v, &model, vd / model[OFF].max(1e-30), 3.0, lo, hi);
+            let Some(i) = first_strong_peak(&masked, lo, hi, 0.3, floor) else { continue };
+            let Some((pr, vr)) = peak_in(&v, i - 1, i + 2) else { continue };
+            let t_mid = (n0 as f64 + 0.5 * frame as f64) / fs;
+            let Some(pos) = pose_at(t_mid) else { continue };
+            let d_rate = a * (1.0 - sigma_d);
+            meas.push(FrameMeas {
+                chirp: ci,
+                t_mid_s: t_mid,
+                pos,
+                f_direct_hz: f_pred + dir * (pd - OFF as f64) * bin_hz,
+                f_reflected_hz: f_pred + dir * (pr - OFF as f64) * bin_hz,
+                d_rate_mps: d_rate,
+                level: vr / vd.max(1e-30),
+            });
+        }
+    }
+    Ok(correct(&meas, sweeps, dets, a, fs, p))
+}
+
+/// The analytic signal of `x` (FFT, negative frequencies zeroed, inverse).
+fn analytic(cache: &mut FftCache, x: &[f32]) -> Vec<Complex32> {
+    let nfft = (2 * x.len()).next_power_of_two();
+    let mut buf: Vec<Complex32> = (0..nfft).map(|i| Complex32::new(x.get(i).copied().unwrap_or(0.0), 0.0)).collect();
+    cache.forward(&mut buf);
+    let scale = 1.0 / nfft as f32;
+    for (j, b) in buf.iter_mut().enumerate() {
+        *b *= if j == 0 || j == nfft / 2 {
+            scale
+        } else if j < nfft / 2 {
+            2.0 * scale
+        } else {
+            0.0
+        };
+    }
+    cache.inverse(&mut buf);
+    buf.truncate(x.len());
+    buf
+}
+
+/// Largest correction (s) [`refine_emission`] searches.
+const REFINE_S: f64 = 0.004;
+
+/// The chirp's emission start `e_s` (recorder clock) refined by correlating
+/// the recording with the direct sound's exact waveform: the sweep at the
+/// emission times `t − D(t)/a − e_s`, `D` from the poses. A template of one
+/// Doppler scale cannot follow a listener whose radial speed changes within
+/// the chirp (passing the speaker), and its range–Doppler coupling shifts
+/// the detected onset by up to f·δσ/|k|. Lags within ±[`REFINE_S`]; the
+/// products are summed on every 4th sample (near the match they vary slowly).
+fn refine_emission(
+    x: &[f32],
+    fs: f64,
+    sweep: &dyn Sweep,
+    e_s: f64,
+    pose_at: &dyn Fn(f64) -> Option<Point>,
+    speaker: Point,
+    a: f64,
+) -> f64 {
+    let t_chirp = sweep.duration_s();
+    // Reception span of the direct sound and the model on it.
+    let (Some(q0), Some(q1)) = (pose_at(e_s), pose_at(e_s + t_chirp)) else { return e_s };
+    let n_a = ((e_s + speaker.dist(q0) / a) * fs).floor();
+    let n_b = ((e_s + t_chirp + speaker.dist(q1) / a) * fs).ceil();
+    let lmax = (REFINE_S * fs).ceil();
+    if n_a - lmax < 0.0 || n_b + lmax >= x.len() as f64 {
+        return e_s;
+    }
+    let (n_a, n_b, lmax) = (n_a as usize, n_b as usize, lmax as i64);
+    let mut model = Vec::new();
+    for n in (n_a..n_b).step_by(4) {
+        let t = n as f64 / fs;
+        let Some(q) = pose_at(t) else { continue };
+        let tau = t - speaker.dist(q) / a - e_s;
+        if !(0.0..=t_chirp).contains(&tau) {
+            continue;
+        }
+        let ph = sweep.phase_cycles(tau);
+        let ang = std::f64::consts::TAU * (ph - ph.floor());
+        model.push((n, Complex32::new(ang.cos() as f32, -ang.sin() as f32)));
+    }
+    if model.len() < 16 {
+        return e_s;
+    }
+    let env: Vec<f64> = (-lmax..=lmax)
+        .map(|l| {
+            let mut c = Complex32::new(0.0, 0.0);
+            for &(n, m) in &model {
+                c += m * x[(n as i64 + l) as usize];
+            }
+            f64::from(c.norm())
+        })
+        .collect();
+    match peak_in(&env, 1, env.len() - 1) {
+        Some((k, _)) => e_s + (k - lmax as f64) / fs,
+        None => e_s,
+    }
+}
+
+/// Per-chirp Δḋ from the tracks (module docs, 4–5) and the corrected echoes.
+fn correct(
+    meas: &[FrameMeas],
+    sweeps: &[&dyn Sweep],
+    dets: &[MovingDetection],
+    a: f64,
+    fs: f64,
+    p: &DopplerParams,
+) -> Vec<MovingEcho> {
+    let n_chirps = dets.len();
+    let by_chirp: Vec<Vec<usize>> = {
+        let mut v = vec![Vec::new(); n_chirps];
+        for (i, m) in meas.iter().enumerate() {
+            v[m.chirp].push(i);
+        }
+        v
+    };
+    let dirs: Vec<f64> =
+        dets.iter().map(|d| sweeps.get(d.sweep).map_or(1.0, |s| (s.f_start_hz() - s.f_end_hz()).signum())).collect();
+    let onset = |c: usize| dets[c].detection.onset_sample;
+    let mut rates: Vec<Option<f64>> = vec![None; n_chirps];
+    for c in 0..n_chirps {
+        // The group: this chirp, plus its neighbours of the other direction
+        // (alternating sweeps: the closed-form pairs).
+        let mut group: Vec<usize> = by_chirp[c].clone();
+        let mut partners = Vec::new();
+        for nb in [c.wrapping_sub(1), c + 1] {
+            if nb < n_chirps && dirs[nb] != dirs[c] {
+                let gap = (onset(nb) as f64 - onset(c) as f64).abs();
+                let span = sweeps.get(dets[c].sweep).map_or(0.0, |s| s.duration_s());
+                // Only the adjacent chirp of a train (not one across a pause).
+                if gap < 4.0 * span * fs {
+                    partners.push(nb);
+                    group.extend(&by_chirp[nb]);
+                }
+            }
+        }
+        if by_chirp[c].len() < 2 || group.len() < MIN_GROUP_FRAMES {
+            continue;
+        }
+        let t0 = meas[by_chirp[c][by_chirp[c].len() / 2]].t_mid_s;
+        let paired = !partners.is_empty();
+        let mut rate = 0.0f64;
+        for _ in 0..4 {
+            let mut g = Vec::with_capacity(group.len());
+            let mut y = Vec::with_capacity(group.len());
+            let mut keep = Vec::with_capacity(group.len());
+            for &i in &group {
+                let m = &meas[i];
+                let Some(sw) = sweeps.get(dets[m.chirp].sweep) else { continue };
+                let (Some(d0), Some(d1)) = (frame_delta_d(m, *sw, a, rate), frame_delta_d(m, *sw, a, rate + 0.01))
+                else {
+                    continue;
+                };
+                let h = (d1 - d0) / 0.01;
+                g.push(m.t_mid_s - t0 - h);
+                y.push(d0 - h * rate);
+                keep.push(i);
+            }
+            let ok = |i: usize, j: usize| !paired || meas[keep[i]].chirp != meas[keep[j]].chirp;
+            match theil_sen(&g, &y, 0.05, &ok) {
+                Some(s) if s.is_finite() => rate = s,
+                _ => break,
+            }
+        }
+        rates[c] = Some(rate);
+    }
+    // Chirps without their own estimate take the nearest chirp's.
+    let own = rates.clone();
+    for c in 0..n_chirps {
+        if own[c].is_none() {
+            let near = (0..n_chirps)
+                .filter(|&o| own[o].is_some())
+                .min_by_key(|&o| (onset(o) as i64 - onset(c) as i64).unsigned_abs());
+            rates[c] = near.and_then(|o| own[o]);
+        }
+    }
+    let mut out = Vec::new();
+    for c in 0..n_chirps {
+        let Some(rate) = rates[c] else { continue };
+        let Some(sw) = sweeps.get(dets[c].sweep) else { continue };
+        let vals: Vec<(usize, f64)> =
+            by_chirp[c].iter().filter_map(|&i| frame_delta_d(&meas[i], *sw, a, rate).map(|d| (i, d))).collect();
+        if vals.is_empty() {
+            continue;
+        }
+        let t0 = meas[vals[vals.len() / 2].0].t_mid_s;
+        let base: Vec<f64> = vals.iter().map(|&(i, d)| d - rate * (meas[i].t_mid_s - t0)).collect();
+        let center = median_of(&base);
+        let resid: Vec<f64> = base.iter().map(|b| (b - center).abs()).collect();
+        let mad = 1.4826 * median_of(&resid);
+        let gate = TRACK_GATE_M.max(5.0 * mad);
+        for (k, &(i, dd)) in vals.iter().enumerate() {
+            if resid[k] > gate || dd <= 0.0 {
+                continue;
+            }
+            let m = &meas[i];
+            if let Ok(echo) = Echo::new(p.speaker, m.pos, dd, 1.0, m.t_mid_s, p.listener_id) {
+                let _ = m.level;
+                out.push(MovingEcho { echo, delta_d_rate_mps: Some(rate), chirp: c });
+            }
+        }
+    }
+    out
+}
+
+/// How `map --wav` turns a moving listener's recording into echoes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum WavMethod {
+    /// The paper's frequency gap in short frames (§IV), no Doppler correction.
+    Gap,
+    /// Ours: dechirped frames aligned on the direct sound by the poses, no Doppler correction.
+    Dechirp,
+    /// Ours (issue 11): template-bank detection, frames dechirped along the
+    /// direct path, Δd corrected for range–Doppler coupling (module docs).
+    Doppler,
+}
+
+impl WavMethod {
+    /// Every method, in the order reports list them.
+    pub const ALL: [WavMethod; 3] = [WavMethod::Gap, WavMethod::Dechirp, WavMethod::Doppler];
+    /// Lower-case name, as accepted on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            WavMethod::Gap => "gap",
+            WavMethod::Dechirp => "dechirp",
+            WavMethod::Doppler => "doppler",
+        }
+    }
+}
+
+impl std::str::FromStr for WavMethod {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "gap" => Ok(WavMethod::Gap),
+            "dechirp" => Ok(WavMethod::Dechirp),
+            "doppler" => Ok(WavMethod::Doppler),
+            o => Err(format!("unknown method {o:?}: use doppler, gap or dechirp")),
+        }
+    }
+}
+
+/// Everything a moving listener's recording needs besides the samples, the
+/// chirp and the poses.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MovingOptions {
+    /// Echo extraction method.
+    pub method: WavMethod,
+    /// The chirp train's sweep directions (`None`: as the chirp is written).
+    pub pattern: Option<crate::synth::ChirpPattern>,
+    /// Time between measurements (s).
+    pub period_s: f64,
+    /// Frame length (s); `None`: the method's default.
+    pub frame_s: Option<f64>,
+    /// Speaker position (m).
+    pub speaker: Point,
+    /// Listener id written into the echoes.
+    pub listener_id: u32,
+}
