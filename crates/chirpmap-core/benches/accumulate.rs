@@ -1,22 +1,105 @@
-//! Rasterising ellipses is the mapper's hot loop (issue: foundation, "Speed").
+//! Rasterising ellipses is the mapper's hot loop (issue: foundation, "Speed";
+//! issue 14: "the mapper near the machine's limit").
 //!
 //! `cargo bench -p chirpmap-core --bench accumulate`
 //!
 //! - `fast_100k`: 100 000 realistic echoes (foci 10–30 m apart, Δd 1–40 m)
-//!   accumulated on the default 100 m × 100 m, 0.1 m grid; the counter reports
-//!   cell updates per second.
+//!   accumulated by the mapper on the default 100 m × 100 m, 0.1 m grid; the
+//!   counter reports cell updates per second.
+//! - `reference_100k`: the same echoes with the previous rasteriser
+//!   (`for_each_entered_span_reference`) and a plain add per cell: the
+//!   speed-up of issue 14 measured in the same run.
+//! - `raster_only_100k`, `raster_only_reference_100k`: the rasterisers alone
+//!   (cells counted, nothing written): the arithmetic's share.
+//! - Peers, the machine's limits measured in the same run (issue 14, item 1):
+//!   `peer_random_increments` adds 1 at as many pseudo-random cells of a grid
+//!   of the same size (8 MB of f64) as `fast_100k` updates;
+//!   `peer_span_replay` replays the exact span sequence of the first 10 000
+//!   echoes (recorded beforehand), additions only.
 //! - `literal_per_ellipse` vs `fast_per_ellipse`: the literal reading of
 //!   Algorithm 1 (test every grid cell against the ellipse) against the
 //!   rasteriser on the same ellipses, for the speed-up ratio.
 
-use chirpmap_core::raster::{entered_cells_literal, for_each_entered_span};
+use chirpmap_core::mapper::add_ellipse;
+use chirpmap_core::raster::{entered_cells_literal, for_each_entered_span, for_each_entered_span_reference};
 use chirpmap_core::{AccumulationMapper, Echo, GridSpec, Mapper, MappingParams, Point};
 use divan::counter::ItemsCount;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 fn main() {
+    if let Some(rounds) = std::env::var("CHIRPMAP_INTERLEAVED").ok().and_then(|v| v.parse().ok()) {
+        interleaved(rounds);
+        return;
+    }
     divan::main();
+}
+
+/// This thread's CPU time (s) from Linux's /proc/thread-self/schedstat
+/// (first field: ns on the CPU), so that time slices lost to other processes
+/// on the shared machine do not count; `None` elsewhere.
+fn thread_cpu_s() -> Option<f64> {
+    let text = std::fs::read_to_string("/proc/thread-self/schedstat").ok()?;
+    Some(text.split_whitespace().next()?.parse::<f64>().ok()? * 1e-9)
+}
+
+fn median(v: &mut [f64]) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+/// Variant: plain loop per span.
+fn add_plain(e: &chirpmap_core::Ellipse, s: &GridSpec, data: &mut [f64], w: f64) -> u64 {
+    let mut n = 0u64;
+    chirpmap_core::raster::for_each_entered_row(e, s, |j, lo1, hi1, lo2, hi2| {
+        let base = j * s.nx;
+        for (lo, hi) in [(lo1, hi1), (lo2, hi2)] {
+            if lo <= hi {
+                for v in &mut data[base + lo as usize..=base + hi as usize] {
+                    *v += w;
+                }
+                n += (hi - lo + 1) as u64;
+            }
+        }
+    });
+    n
+}
+
+/// Variant: spans collected per ellipse, then replayed.
+fn add_buffered(e: &chirpmap_core::Ellipse, s: &GridSpec, data: &mut [f64], w: f64, buf: &mut Vec<(u32, u32)>) -> u64 {
+    buf.clear();
+    chirpmap_core::raster::for_each_entered_row(e, s, |j, lo1, hi1, lo2, hi2| {
+        let base = j * s.nx;
+        buf.push(((base as i64 + lo1) as u32, (hi1 - lo1 + 1).max(0) as u32));
+        buf.push(((base as i64 + lo2.min(s.nx as i64 - 1)) as u32, (hi2 - lo2 + 1).max(0) as u32));
+    });
+    replay_masked(buf, data, w)
+}
+
+/// Replays spans with fixed-width masked adds for spans of at most 4 cells.
+fn replay_masked(spans: &[(u32, u32)], data: &mut [f64], w: f64) -> u64 {
+    let mut masks = [[0.0f64; 4]; 5];
+    for (len, m) in masks.iter_mut().enumerate() {
+        m[..len].fill(w);
+    }
+    let mut n = 0u64;
+    for &(start, len) in spans {
+        let (start, len) = (start as usize, len as usize);
+        n += len as u64;
+        match data.get_mut(start..start + 4) {
+            Some(cells) if len <= 4 => {
+                for (c, m) in cells.iter_mut().zip(&masks[len]) {
+                    *c += m;
+                }
+            }
+            _ => {
+                for c in &mut data[start..start + len] {
+                    *c += w;
+                }
+            }
+        }
+    }
+    n
 }
 
 fn spec() -> GridSpec {
@@ -45,6 +128,114 @@ fn cells_of(echoes: &[Echo]) -> u64 {
     n
 }
 
+/// Interleaved rounds of the mapper's loop and its peers, so that every
+/// ratio compares runs made under the same load.
+fn interleaved(rounds: usize) {
+    let s = spec();
+    let echoes = echoes(100_000);
+    let es: Vec<_> = echoes.iter().map(|e| e.ellipse().expect("valid")).collect();
+    let cells = cells_of(&echoes);
+    let len = s.len() as u64;
+    let mut spans: Vec<(u32, u32)> = Vec::new();
+    for e in &es[..10_000] {
+        for_each_entered_span(e, &s, |j, lo, hi| spans.push(((j * s.nx + lo) as u32, (hi - lo + 1) as u32)));
+    }
+    let replay_cells: u64 = spans.iter().map(|&(_, n)| u64::from(n)).sum();
+    // One grid for the plain passes, its pages faulted in before timing
+    // (values keep growing, which changes no timing).
+    let mut g = vec![0.0f64; s.len()];
+    for v in &mut g {
+        *v = std::hint::black_box(0.0);
+    }
+    let mut mapper = AccumulationMapper::new(s, MappingParams::default()).expect("valid mapper");
+    let mut buf = Vec::new();
+    type Pass<'a> = Box<dyn FnMut(&mut Vec<f64>) -> u64 + 'a>;
+    let mut passes: Vec<(&str, Pass)> = vec![
+        (
+            "mapper add_echoes (banded)",
+            Box::new(|_| {
+                mapper.add_echoes(&echoes).expect("valid echoes");
+                cells
+            }),
+        ),
+        ("add_ellipse per echo", Box::new(|g| es.iter().map(|e| add_ellipse(e, &s, g, 1.0)).sum())),
+        ("plain spans", Box::new(|g| es.iter().map(|e| add_plain(e, &s, g, 1.0)).sum())),
+        ("buffered spans", Box::new(|g| es.iter().map(|e| add_buffered(e, &s, g, 1.0, &mut buf)).sum())),
+        (
+            "raster only",
+            Box::new(|_| {
+                let mut n = 0usize;
+                for e in &es {
+                    for_each_entered_span(e, &s, |_, lo, hi| n += hi - lo + 1);
+                }
+                n as u64
+            }),
+        ),
+        (
+            "reference + add",
+            Box::new(|g| {
+                for e in &es {
+                    for_each_entered_span_reference(e, &s, |j, lo, hi| {
+                        for v in &mut g[j * s.nx + lo..=j * s.nx + hi] {
+                            *v += 1.0;
+                        }
+                    });
+                }
+                cells
+            }),
+        ),
+        (
+            "peer: random increments",
+            Box::new(|g| {
+                let mut x = 0x9e37_79b9_7f4a_7c15u64;
+                for _ in 0..cells {
+                    x ^= x << 13;
+                    x ^= x >> 7;
+                    x ^= x << 17;
+                    g[((u128::from(x) * u128::from(len)) >> 64) as usize] += 1.0;
+                }
+                cells
+            }),
+        ),
+        (
+            "peer: span replay",
+            Box::new(|g| {
+                for &(start, n) in &spans {
+                    for v in &mut g[start as usize..(start + n) as usize] {
+                        *v += 1.0;
+                    }
+                }
+                replay_cells
+            }),
+        ),
+    ];
+    let mut t: Vec<Vec<f64>> = vec![Vec::new(); passes.len()];
+    let mut n: Vec<u64> = vec![0; passes.len()];
+    let only: Option<usize> = std::env::var("CHIRPMAP_INTERLEAVED_ONLY").ok().and_then(|v| v.parse().ok());
+    for _ in 0..rounds {
+        for (k, (_, pass)) in passes.iter_mut().enumerate() {
+            if only.is_some_and(|o| o != k) {
+                t[k].push(f64::NAN);
+                continue;
+            }
+            let (started, cpu) = (std::time::Instant::now(), thread_cpu_s());
+            n[k] = std::hint::black_box(pass(&mut g));
+            let wall = started.elapsed().as_secs_f64();
+            t[k].push(match (cpu, thread_cpu_s()) {
+                (Some(a), Some(b)) => b - a,
+                _ => wall,
+            });
+        }
+    }
+    let rates: Vec<f64> = t.iter_mut().zip(&n).map(|(v, &c)| c as f64 / median(v) / 1e6).collect();
+    let peer = rates[6];
+    let clock = if thread_cpu_s().is_some() { "thread CPU time" } else { "wall time" };
+    println!("{rounds} interleaved rounds, medians of {clock}; {cells} cell updates per pass");
+    for ((name, _), r) in passes.iter().zip(&rates) {
+        println!("{name:28} {r:8.1} M cell updates/s  ({:.2} of random increments)", r / peer);
+    }
+}
+
 #[divan::bench(sample_count = 5, sample_size = 1)]
 fn fast_100k(bencher: divan::Bencher) {
     let es = echoes(100_000);
@@ -54,28 +245,115 @@ fn fast_100k(bencher: divan::Bencher) {
         .with_inputs(|| AccumulationMapper::new(spec(), MappingParams::default()))
         .bench_local_values(|mapper| {
             let mut m = mapper.expect("valid mapper");
-            for e in &es {
-                m.add_echo(e).expect("valid echo");
-            }
+            m.add_echoes(&es).expect("valid echoes");
             m.cells_updated()
         });
 }
 
-/// The bare loop (rasterise + add into a plain Vec) without the mapper, to
-/// see what the mapper's bookkeeping costs.
+/// The bare loop (rasterise + [`add_ellipse`] into a plain Vec) without the
+/// mapper's checks, to see what the mapper's bookkeeping costs.
 #[divan::bench(sample_count = 5, sample_size = 1)]
 fn fast_100k_bare_loop(bencher: divan::Bencher) {
-    let es = echoes(100_000);
-    let cells = cells_of(&es);
+    let es: Vec<_> = echoes(100_000).iter().map(|e| e.ellipse().expect("valid")).collect();
+    let cells = cells_of(&echoes(100_000));
+    let s = spec();
+    bencher.counter(ItemsCount::new(cells)).with_inputs(|| vec![0.0f64; s.len()]).bench_local_values(|mut grid| {
+        let mut n = 0;
+        for e in &es {
+            n += add_ellipse(e, &s, &mut grid, 1.0);
+        }
+        (grid, n)
+    });
+}
+
+/// The previous rasteriser with a plain add per cell (what the mapper did
+/// before issue 14, minus the prefetch touch).
+#[divan::bench(sample_count = 5, sample_size = 1)]
+fn reference_100k(bencher: divan::Bencher) {
+    let es: Vec<_> = echoes(100_000).iter().map(|e| e.ellipse().expect("valid")).collect();
+    let cells = cells_of(&echoes(100_000));
     let s = spec();
     bencher.counter(ItemsCount::new(cells)).with_inputs(|| vec![0.0f64; s.len()]).bench_local_values(|mut grid| {
         for e in &es {
-            let w = e.weight;
-            for_each_entered_span(&e.ellipse().expect("valid"), &s, |j, lo, hi| {
+            for_each_entered_span_reference(e, &s, |j, lo, hi| {
                 for v in &mut grid[j * s.nx + lo..=j * s.nx + hi] {
-                    *v += w;
+                    *v += 1.0;
                 }
             });
+        }
+        grid
+    });
+}
+
+#[divan::bench(sample_count = 5, sample_size = 1)]
+fn raster_only_100k(bencher: divan::Bencher) {
+    let es: Vec<_> = echoes(100_000).iter().map(|e| e.ellipse().expect("valid")).collect();
+    let cells = cells_of(&echoes(100_000));
+    let s = spec();
+    bencher.counter(ItemsCount::new(cells)).bench_local(|| {
+        let mut n = 0usize;
+        for e in &es {
+            for_each_entered_span(e, &s, |_, lo, hi| n += hi - lo + 1);
+        }
+        n
+    });
+}
+
+#[divan::bench(sample_count = 5, sample_size = 1)]
+fn raster_only_reference_100k(bencher: divan::Bencher) {
+    let es: Vec<_> = echoes(100_000).iter().map(|e| e.ellipse().expect("valid")).collect();
+    let cells = cells_of(&echoes(100_000));
+    let s = spec();
+    bencher.counter(ItemsCount::new(cells)).bench_local(|| {
+        let mut n = 0usize;
+        for e in &es {
+            for_each_entered_span_reference(e, &s, |_, lo, hi| n += hi - lo + 1);
+        }
+        n
+    });
+}
+
+/// Peer: the machine's rate of adding 1 to pseudo-random cells of an 8 MB
+/// f64 grid (xorshift64, Marsaglia 2003; index by multiply-high), as many
+/// increments as `fast_100k` makes.
+#[divan::bench(sample_count = 5, sample_size = 1)]
+fn peer_random_increments(bencher: divan::Bencher) {
+    let cells = cells_of(&echoes(100_000));
+    let len = spec().len() as u64;
+    bencher.counter(ItemsCount::new(cells)).with_inputs(|| vec![0.0f64; len as usize]).bench_local_values(
+        |mut grid| {
+            let mut x = 0x9e37_79b9_7f4a_7c15u64;
+            for _ in 0..cells {
+                x ^= x << 13;
+                x ^= x >> 7;
+                x ^= x << 17;
+                let i = ((u128::from(x) * u128::from(len)) >> 64) as usize;
+                grid[i] += 1.0;
+            }
+            grid
+        },
+    );
+}
+
+/// Peer: the exact span sequence of the first 10 000 echoes (start index,
+/// length), recorded once, replayed as additions only: memory traffic with no
+/// rasterising.
+#[divan::bench(sample_count = 5, sample_size = 1)]
+fn peer_span_replay(bencher: divan::Bencher) {
+    let s = spec();
+    let es = echoes(10_000);
+    let mut spans: Vec<(u32, u32)> = Vec::new();
+    for e in &es {
+        for_each_entered_span(&e.ellipse().expect("valid"), &s, |j, lo, hi| {
+            spans.push(((j * s.nx + lo) as u32, (hi - lo + 1) as u32));
+        });
+    }
+    let cells: u64 = spans.iter().map(|&(_, n)| u64::from(n)).sum();
+    bencher.counter(ItemsCount::new(cells)).with_inputs(|| vec![0.0f64; s.len()]).bench_local_values(|mut grid| {
+        for &(start, n) in &spans {
+            for v in &mut grid[start as usize..(start + n) as usize] {
+                *v += 1.0;
+            }
         }
         grid
     });
