@@ -158,9 +158,7 @@ pub fn map_on_grid(echoes: &[Echo], spec: GridSpec, params: MappingParams) -> Re
     match params.mapper {
         MapperKind::Paper => {
             let mut mapper = AccumulationMapper::new(spec, params)?;
-            for e in echoes {
-                mapper.add_echo(e)?;
-            }
+            mapper.add_echoes(echoes)?;
             let highlights = mapper.highlights();
             let cells_updated = mapper.cells_updated();
             Ok(MapResult { grid: mapper.into_grid(), highlights, surfaces: Vec::new(), cells_updated, params })
