@@ -467,6 +467,31 @@ mod tests {
         from + v[from..].iter().position(|s| s.abs() > thr).unwrap()
     }
 
+    /// `pattern = "updown"`: the second chirp is the up-sweep, sample for
+    /// sample the analytic waveform (the direct path only, static mic).
+    #[test]
+    fn updown_alternates_and_the_pattern_is_validated() {
+        let text = format!(
+            "[chirp]\nf_start = 10000.0\nf_end = 200.0\nduration = 0.25\n[[listeners]]\nstart = [1.5, 0.5]\nspeed = 0.0\n\
+             [synth]\nchirps = 2\ngap_s = 0.25\nstart_s = {START_S}\ntail_s = 0.2\ntaper_s = 0.0\npattern = \"updown\"\n"
+        );
+        let (scene, cfg) = parse_scene_with_synth(&text).unwrap();
+        let syn = synthesize(&scene, &cfg).unwrap();
+        let y = &syn.channels[0];
+        let t0 = START_S + 0.5 + Point::new(1.5, 0.5).norm() / scene.world.speed_of_sound;
+        let n = (t0 * FS).ceil() as usize + 3000;
+        let tau = n as f64 / FS - t0;
+        let rate = (10_000.0 - 200.0) / 0.25;
+        let want = (std::f64::consts::TAU * (200.0 * tau + 0.5 * rate * tau * tau)).sin();
+        let scale = f64::from(y[n]) / want;
+        assert!((scale.abs() - 0.5).abs() < 2e-3, "y[{n}] = {} vs up-sweep {want}", y[n]);
+        let bad = text.replace("updown", "sideways");
+        let e = parse_scene_with_synth(&bad).unwrap_err().to_string();
+        assert!(e.contains("sideways") || e.contains("pattern"), "{e}");
+        assert_eq!(pattern_cycle(&scene.chirp, Some(ChirpPattern::Up))[0].f_start, 200.0);
+        assert_eq!(pattern_cycle(&scene.chirp, None)[0], scene.chirp);
+    }
+
     #[test]
     fn direct_arrival_starts_at_d_over_a_with_the_analytic_waveform() {
         let (scene, y) = render(None);

@@ -1,0 +1,144 @@
+//! Issue 11 end to end: `chirpmap synth` with chirp patterns, `chirpmap map
+//! --wav` with the Doppler-corrected default, its `delta_d_rate` column and
+//! the map's wall, checked against the wall's exact position (face y = −6 m).
+#![allow(clippy::unwrap_used)]
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn run(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_chirpmap")).args(args).output().expect("spawn chirpmap")
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("chirpmap-doppler-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+const SCENE: &str = include_str!("../../../examples/moving-wall/scene.toml");
+
+/// The moving-wall scene at `speed` m/s, 16 chirps, with `extra` [synth] lines.
+fn scene(d: &Path, speed: f64, extra: &str) -> PathBuf {
+    let text = SCENE
+        .replace("speed = 1.0", &format!("speed = {speed}"))
+        .replace("chirps = 40", "chirps = 16")
+        .replace("snr_db = 20.0", &format!("snr_db = 20.0\n{extra}"));
+    let p = d.join("scene.toml");
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+fn synth(scene: &Path, d: &Path) -> (PathBuf, PathBuf) {
+    let (wav, poses) = (d.join("rec.wav"), d.join("poses.csv"));
+    let o =
+        run(&["synth", scene.to_str().unwrap(), "--out", wav.to_str().unwrap(), "--poses", poses.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    (wav, poses)
+}
+
+fn map_wav(wav: &Path, poses: &Path, out: &Path, extra: &[&str]) -> Output {
+    let mut args = vec!["map", "--wav", wav.to_str().unwrap(), "--poses", poses.to_str().unwrap()];
+    args.extend_from_slice(&["--speaker", "0,0", "--out", out.to_str().unwrap()]);
+    args.extend_from_slice(extra);
+    run(&args)
+}
+
+/// Echoes CSV rows as maps column → values.
+fn read_csv(p: &Path) -> (Vec<String>, Vec<Vec<String>>) {
+    let text = std::fs::read_to_string(p).unwrap();
+    let mut lines = text.lines();
+    let head: Vec<String> = lines.next().unwrap().split(',').map(String::from).collect();
+    (head, lines.map(|l| l.split(',').map(String::from).collect()).collect())
+}
+
+#[test]
+fn default_map_wav_corrects_doppler_and_writes_delta_d_rate() {
+    let d = tmp("default");
+    let sc = scene(&d, 2.0, "");
+    let (wav, poses) = synth(&sc, &d);
+    let out = d.join("map");
+    let o = map_wav(&wav, &poses, &out, &["--scene", sc.to_str().unwrap(), "--cell", "0.02", "--bounds=-20,-8,20,4"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("by doppler"), "{}", stderr(&o));
+    let (head, rows) = read_csv(&out.join("echoes.csv"));
+    assert_eq!(head.last().unwrap(), "delta_d_rate");
+    let col = |h: &str| head.iter().position(|c| c == h).unwrap();
+    let (lx, ly, dd, rate) = (col("listener_x"), col("listener_y"), col("delta_d"), col("delta_d_rate"));
+    let mut errs = Vec::new();
+    for r in &rows {
+        let l = (r[lx].parse::<f64>().unwrap(), r[ly].parse::<f64>().unwrap());
+        // Exact Δd: image source (0, −12) of the speaker in the wall face y = −6.
+        let truth = (l.0.hypot(l.1 + 12.0)) - l.0.hypot(l.1);
+        errs.push((r[dd].parse::<f64>().unwrap() - truth).abs());
+        let v: f64 = r[rate].parse().unwrap();
+        assert!(v.abs() <= 4.0 + 1e-9, "Δḋ {v} beyond twice the listener's speed");
+    }
+    errs.sort_by(f64::total_cmp);
+    assert!(errs.len() > 250, "{} echoes", errs.len());
+    assert!(errs[errs.len() / 2] < 0.01 && errs[errs.len() * 9 / 10] < 0.03, "median {}", errs[errs.len() / 2]);
+    // The strongest highlight lies on the wall face, within 3 cm (2 cm cells).
+    let (_, h) = read_csv(&out.join("highlights.csv"));
+    let y: f64 = h[0][1].parse().unwrap();
+    assert!((y + 6.0).abs() <= 0.03, "strongest highlight at y = {y}");
+    // The written file maps again through --echoes (the extra column is ignored).
+    let again = d.join("again");
+    let o = run(&[
+        "map",
+        "--echoes",
+        out.join("echoes.csv").to_str().unwrap(),
+        "--out",
+        again.to_str().unwrap(),
+        "--cell",
+        "0.02",
+        "--bounds=-20,-8,20,4",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(
+        std::fs::read_to_string(again.join("highlights.csv")).unwrap(),
+        std::fs::read_to_string(out.join("highlights.csv")).unwrap()
+    );
+}
+
+#[test]
+fn alternating_pattern_from_the_scene_and_the_methods_that_refuse_it() {
+    let d = tmp("updown");
+    let sc = scene(&d, 2.0, "pattern = \"updown\"");
+    let (wav, poses) = synth(&sc, &d);
+    let out = d.join("map");
+    let o = map_wav(&wav, &poses, &out, &["--scene", sc.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("16 chirp(s)"), "{}", stderr(&o));
+    // gap ranges one sweep direction: refused, naming the method and the pattern.
+    let o = map_wav(&wav, &poses, &d.join("gap"), &["--scene", sc.to_str().unwrap(), "--method", "gap"]);
+    assert!(!o.status.success());
+    let e = stderr(&o);
+    assert!(e.contains("method") && e.contains("updown") && !e.contains("panicked"), "{e}");
+    assert!(!d.join("gap").exists());
+    // An unknown pattern is refused by the scene parser, naming it.
+    let bad = scene(&d, 2.0, "pattern = \"sideways\"");
+    let o = run(&["synth", bad.to_str().unwrap(), "--out", d.join("bad.wav").to_str().unwrap()]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("pattern") || stderr(&o).contains("sideways"), "{}", stderr(&o));
+    let o = map_wav(&wav, &poses, &d.join("x"), &["--pattern", "sideways"]);
+    assert!(!o.status.success() && stderr(&o).contains("sideways"), "{}", stderr(&o));
+}
+
+#[test]
+fn hyperbolic_sweeps_synthesize_and_map_with_the_doppler_method() {
+    let d = tmp("hyper");
+    let sc = scene(&d, 2.0, "");
+    let text =
+        std::fs::read_to_string(&sc).unwrap().replace("duration = 0.25", "duration = 0.25\nkind = \"hyperbolic\"");
+    std::fs::write(&sc, text).unwrap();
+    let (wav, poses) = synth(&sc, &d);
+    let out = d.join("map");
+    let o = map_wav(&wav, &poses, &out, &["--scene", sc.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("16 chirp(s)"), "{}", stderr(&o));
+}
