@@ -211,17 +211,21 @@ struct Stage {
     atom: Vec<Complex64>,
     energy: f64,
     shifter: Shifter,
+    /// The whole system response (the atom is its head), subtracted with
+    /// the gain fitted on the atom so that each echo's own ringing goes too.
+    whole: Option<Shifter>,
     corr: Vec<Complex64>,
 }
 
 impl Stage {
-    fn new(atom: &[Complex64], res: &[Complex64]) -> Option<Self> {
+    fn new(atom: &[Complex64], whole: Option<&[Complex64]>, res: &[Complex64]) -> Option<Self> {
         let energy: f64 = atom.iter().map(|c| c.norm_sqr()).sum();
         if atom.is_empty() || res.len() < atom.len() + 2 || !(energy > 0.0 && energy.is_finite()) {
             return None;
         }
         let corr = correlate_all(res, atom, energy);
-        Some(Self { atom: atom.to_vec(), energy, shifter: Shifter::new(atom), corr })
+        let whole = whole.filter(|w| w.len() > atom.len()).map(Shifter::new);
+        Some(Self { atom: atom.to_vec(), energy, shifter: Shifter::new(atom), whole, corr })
     }
 
     /// Recomputes the correlation at the starts whose window overlaps `res[lo..hi]`.
@@ -250,23 +254,39 @@ impl Stage {
             return None;
         }
         let g = num / den;
-        for (r, t) in res[ist..ist + tt.len()].iter_mut().zip(&tt) {
+        let tt = match self.whole.as_mut() {
+            Some(w) => w.shifted(s0 - ist as f64),
+            None => tt,
+        };
+        let end = (ist + tt.len()).min(res.len());
+        for (r, t) in res[ist..end].iter_mut().zip(&tt) {
             *r -= g * t;
         }
-        self.update(res, ist, ist + tt.len());
+        self.update(res, ist, end);
         Some(g)
     }
 
+    /// The strongest start in `lo..hi`.
     fn best(&self, lo: usize, hi: usize) -> Option<usize> {
         (lo..hi.min(self.corr.len())).max_by(|&a, &b| self.corr[a].norm_sqr().total_cmp(&self.corr[b].norm_sqr()))
+    }
+
+    /// The strongest local maximum of |corr| strictly inside `lo..hi` (a
+    /// value at the window's edge is the slope of an arrival outside it).
+    fn best_peak(&self, lo: usize, hi: usize) -> Option<usize> {
+        let c = |k: usize| self.corr[k].norm_sqr();
+        (lo + 1..hi.min(self.corr.len()).saturating_sub(1))
+            .filter(|&k| c(k) >= c(k - 1) && c(k) >= c(k + 1))
+            .max_by(|&a, &b| c(a).total_cmp(&c(b)))
     }
 }
 
 /// Explains `ir` as the direct arrival plus echoes (see the module docs).
 /// The direct arrival is removed with the whole atom (its ringing
-/// included); echoes are matched with the atom's first
-/// `peak_index + p.echo_atom_after_peak` samples, the part that locates an
-/// arrival best when arrivals overlap. `None` when the direct sound is not
+/// included); echoes are located and their gains fitted with the atom's
+/// first `peak_index + p.echo_atom_after_peak` samples, the part that
+/// locates an arrival best when arrivals overlap, and then removed with the
+/// whole atom, their own ringing included. `None` when the direct sound is not
 /// found, the response is shorter than the atom, or the atom is silent.
 pub fn pursue(ir: &[Complex64], atom: &SystemResponse, p: &PursuitParams) -> Option<Pursuit> {
     let pk = atom.peak_index;
@@ -284,7 +304,7 @@ pub fn pursue(ir: &[Complex64], atom: &SystemResponse, p: &PursuitParams) -> Opt
         }
         (s as f64, Complex64::new(1.0, 0.0))
     } else {
-        let mut stage = Stage::new(&atom.samples, &res)?;
+        let mut stage = Stage::new(&atom.samples, None, &res)?;
         let k = stage.best(direct_peak.saturating_sub(pk + 8), (direct_peak + 8).saturating_sub(pk))?;
         let s0 = refine(&stage.corr, k);
         let g = stage.subtract(&mut res, s0)?;
@@ -295,7 +315,7 @@ pub fn pursue(ir: &[Complex64], atom: &SystemResponse, p: &PursuitParams) -> Opt
         return None;
     }
     let echo_len = (pk + p.echo_atom_after_peak.max(1)).min(atom.samples.len());
-    let mut stage = Stage::new(&atom.samples[..echo_len], &res)?;
+    let mut stage = Stage::new(&atom.samples[..echo_len], Some(&atom.samples), &res)?;
     let thr = 10f64.powf(p.threshold_db / 20.0);
     // Echo starts: the echo's peak lies `lag` after the direct's, so its
     // atom starts `lag` after the direct atom's start.
@@ -303,8 +323,8 @@ pub fn pursue(ir: &[Complex64], atom: &SystemResponse, p: &PursuitParams) -> Opt
     let hi = ((direct_start + p.max_lag).floor().max(0.0) as usize + 1).min(stage.corr.len());
     let mut arrivals = Vec::new();
     while arrivals.len() < p.max_echoes && lo + 2 < hi {
-        let Some(k) = stage.best(lo, hi) else { break };
-        if stage.corr[k].norm() < thr * g0n || k == lo || k + 1 == hi {
+        let Some(k) = stage.best_peak(lo, hi) else { break };
+        if stage.corr[k].norm() < thr * g0n {
             break;
         }
         let s0 = refine(&stage.corr, k);

@@ -68,11 +68,14 @@ pub struct RangeArgs {
     pub ceiling_z: Option<f64>,
     /// Length of the loudspeaker's ringing after the direct peak (ms); estimated from the direct
     /// sound, nothing closer is reported.
-    #[arg(long, default_value_t = 2.0)]
+    #[arg(long, default_value_t = 2.0, allow_hyphen_values = true)]
     pub ringing_ms: f64,
     /// Length of the system response after its peak that is matched to each echo (ms).
-    #[arg(long, default_value_t = 0.6)]
+    #[arg(long, default_value_t = 0.6, allow_hyphen_values = true)]
     pub echo_atom_ms: f64,
+    /// An echo within this distance (m) of a predicted floor or ceiling echo is labelled (the nearest).
+    #[arg(long, default_value_t = 0.08, allow_hyphen_values = true)]
+    pub plane_tolerance: f64,
     /// Weakest echo reported, relative to the direct sound (dB).
     #[arg(long, default_value_t = -30.0, allow_hyphen_values = true)]
     pub echo_threshold_db: f64,
@@ -340,6 +343,7 @@ fn run_echoes(args: &RangeArgs) -> Result<()> {
         threshold_db: args.echo_threshold_db,
         ringing_s: args.ringing_ms * 1e-3,
         echo_atom_s: args.echo_atom_ms * 1e-3,
+        plane_tolerance_m: args.plane_tolerance,
         ..chirpmap::EchoOptions::default()
     };
     opts.validate().map_err(|e| match e {

@@ -210,7 +210,7 @@ pub struct EchoOptions {
     /// RIRs: 0.6 ms finds the nearest side wall in 7 of 10 recordings,
     /// the whole 2 ms in 4; docs/rooms.md).
     pub echo_atom_s: f64,
-    /// An echo within this of a predicted floor or ceiling echo is labelled
+    /// The echo nearest a predicted floor or ceiling echo, if within this, is labelled
     /// (m). The dEchorate room's positions are good to about ±6 cm.
     pub plane_tolerance_m: f64,
     /// A system response measured separately (`--calibration`); `None`:
@@ -566,23 +566,16 @@ impl<'a> Picker<'a> {
     }
 }
 
-/// Labels one chirp's echoes: every echo within `tol` of a given floor or
-/// ceiling; for a guessed floor (`floor?`) only the nearest one within 2·tol.
+/// Labels one chirp's echoes: for each predicted floor or ceiling echo,
+/// the nearest echo within `tol` (only one: a wall echo a few centimetres
+/// away keeps its place in the map).
 fn label(echoes: &mut [RoomEcho], predicted: &[(&'static str, f64)], tol: f64) {
     for &(name, dd) in predicted {
-        if name == "floor?" {
-            let nearest = (0..echoes.len())
-                .filter(|&i| (echoes[i].path_delta_m - dd).abs() <= 2.0 * tol)
-                .min_by(|&i, &j| (echoes[i].path_delta_m - dd).abs().total_cmp(&(echoes[j].path_delta_m - dd).abs()));
-            if let Some(i) = nearest
-                && echoes[i].plane.is_none()
-            {
-                echoes[i].plane = Some(name);
-            }
-        } else {
-            for e in echoes.iter_mut().filter(|e| e.plane.is_none() && (e.path_delta_m - dd).abs() <= tol) {
-                e.plane = Some(name);
-            }
+        let nearest = (0..echoes.len())
+            .filter(|&i| echoes[i].plane.is_none() && (echoes[i].path_delta_m - dd).abs() <= tol)
+            .min_by(|&i, &j| (echoes[i].path_delta_m - dd).abs().total_cmp(&(echoes[j].path_delta_m - dd).abs()));
+        if let Some(i) = nearest {
+            echoes[i].plane = Some(name);
         }
     }
 }
@@ -631,7 +624,7 @@ fn cluster(
         })
         .collect();
     for &(name, dd) in predicted {
-        let lim = if name == "floor?" { 2.0 * tol } else { tol };
+        let lim = tol;
         if let Some(c) = out
             .iter_mut()
             .filter(|c| c.plane.is_none() && (c.path_delta_m - dd).abs() <= lim)
