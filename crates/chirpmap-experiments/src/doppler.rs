@@ -286,6 +286,12 @@ pub fn cases(speeds: &[f64]) -> Vec<DopplerCase> {
                 out.push(DopplerCase { speed_mps, method, pattern, kind: SweepKind::Linear });
             }
         }
+        out.push(DopplerCase {
+            speed_mps,
+            method: WavMethod::Doppler,
+            pattern: ChirpPattern::Down,
+            kind: SweepKind::Hyperbolic,
+        });
     }
     out
 }
