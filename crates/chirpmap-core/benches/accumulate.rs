@@ -16,6 +16,11 @@
 //!   of the same size (8 MB of f64) as `fast_100k` updates;
 //!   `peer_span_replay` replays the exact span sequence of the first 10 000
 //!   echoes (recorded beforehand), additions only.
+//! - `CHIRPMAP_INTERLEAVED=5 cargo bench -p chirpmap-core --bench accumulate`
+//!   runs the mapper, the rasteriser alone, the previous loop and the two
+//!   peers in 5 interleaved rounds instead and prints each one's rate and
+//!   its ratio to the random increments: on the shared machine only ratios
+//!   measured this way are stable.
 //! - `literal_per_ellipse` vs `fast_per_ellipse`: the literal reading of
 //!   Algorithm 1 (test every grid cell against the ellipse) against the
 //!   rasteriser on the same ellipses, for the speed-up ratio.
@@ -48,60 +53,6 @@ fn median(v: &mut [f64]) -> f64 {
     v[v.len() / 2]
 }
 
-/// Variant: plain loop per span.
-fn add_plain(e: &chirpmap_core::Ellipse, s: &GridSpec, data: &mut [f64], w: f64) -> u64 {
-    let mut n = 0u64;
-    chirpmap_core::raster::for_each_entered_row(e, s, |j, lo1, hi1, lo2, hi2| {
-        let base = j * s.nx;
-        for (lo, hi) in [(lo1, hi1), (lo2, hi2)] {
-            if lo <= hi {
-                for v in &mut data[base + lo as usize..=base + hi as usize] {
-                    *v += w;
-                }
-                n += (hi - lo + 1) as u64;
-            }
-        }
-    });
-    n
-}
-
-/// Variant: spans collected per ellipse, then replayed.
-fn add_buffered(e: &chirpmap_core::Ellipse, s: &GridSpec, data: &mut [f64], w: f64, buf: &mut Vec<(u32, u32)>) -> u64 {
-    buf.clear();
-    chirpmap_core::raster::for_each_entered_row(e, s, |j, lo1, hi1, lo2, hi2| {
-        let base = j * s.nx;
-        buf.push(((base as i64 + lo1) as u32, (hi1 - lo1 + 1).max(0) as u32));
-        buf.push(((base as i64 + lo2.min(s.nx as i64 - 1)) as u32, (hi2 - lo2 + 1).max(0) as u32));
-    });
-    replay_masked(buf, data, w)
-}
-
-/// Replays spans with fixed-width masked adds for spans of at most 4 cells.
-fn replay_masked(spans: &[(u32, u32)], data: &mut [f64], w: f64) -> u64 {
-    let mut masks = [[0.0f64; 4]; 5];
-    for (len, m) in masks.iter_mut().enumerate() {
-        m[..len].fill(w);
-    }
-    let mut n = 0u64;
-    for &(start, len) in spans {
-        let (start, len) = (start as usize, len as usize);
-        n += len as u64;
-        match data.get_mut(start..start + 4) {
-            Some(cells) if len <= 4 => {
-                for (c, m) in cells.iter_mut().zip(&masks[len]) {
-                    *c += m;
-                }
-            }
-            _ => {
-                for c in &mut data[start..start + len] {
-                    *c += w;
-                }
-            }
-        }
-    }
-    n
-}
-
 fn spec() -> GridSpec {
     GridSpec::from_bounds([-50.0, -50.0, 50.0, 50.0], 0.1, u128::MAX).expect("valid grid")
 }
@@ -129,7 +80,9 @@ fn cells_of(echoes: &[Echo]) -> u64 {
 }
 
 /// Interleaved rounds of the mapper's loop and its peers, so that every
-/// ratio compares runs made under the same load.
+/// ratio compares passes made under the same load; each pass is timed by the
+/// thread's CPU time where Linux gives it (time slices lost to other
+/// processes on the shared machine do not count), else by the wall clock.
 fn interleaved(rounds: usize) {
     let s = spec();
     let echoes = echoes(100_000);
@@ -148,7 +101,6 @@ fn interleaved(rounds: usize) {
         *v = std::hint::black_box(0.0);
     }
     let mut mapper = AccumulationMapper::new(s, MappingParams::default()).expect("valid mapper");
-    let mut buf = Vec::new();
     type Pass<'a> = Box<dyn FnMut(&mut Vec<f64>) -> u64 + 'a>;
     let mut passes: Vec<(&str, Pass)> = vec![
         (
@@ -159,8 +111,6 @@ fn interleaved(rounds: usize) {
             }),
         ),
         ("add_ellipse per echo", Box::new(|g| es.iter().map(|e| add_ellipse(e, &s, g, 1.0)).sum())),
-        ("plain spans", Box::new(|g| es.iter().map(|e| add_plain(e, &s, g, 1.0)).sum())),
-        ("buffered spans", Box::new(|g| es.iter().map(|e| add_buffered(e, &s, g, 1.0, &mut buf)).sum())),
         (
             "raster only",
             Box::new(|_| {
@@ -172,7 +122,27 @@ fn interleaved(rounds: usize) {
             }),
         ),
         (
-            "reference + add",
+            "previous mapper loop",
+            Box::new(|g| {
+                // The previous rasteriser, a plain add per cell, and the
+                // load of the same column 6 rows ahead that it made.
+                let mut touch = 0.0f64;
+                for e in &es {
+                    for_each_entered_span_reference(e, &s, |j, lo, hi| {
+                        if let Some(v) = g.get((j + 6) * s.nx + lo) {
+                            touch += *v;
+                        }
+                        for v in &mut g[j * s.nx + lo..=j * s.nx + hi] {
+                            *v += 1.0;
+                        }
+                    });
+                }
+                std::hint::black_box(touch);
+                cells
+            }),
+        ),
+        (
+            "previous, without the touch",
             Box::new(|g| {
                 for e in &es {
                     for_each_entered_span_reference(e, &s, |j, lo, hi| {
@@ -211,13 +181,8 @@ fn interleaved(rounds: usize) {
     ];
     let mut t: Vec<Vec<f64>> = vec![Vec::new(); passes.len()];
     let mut n: Vec<u64> = vec![0; passes.len()];
-    let only: Option<usize> = std::env::var("CHIRPMAP_INTERLEAVED_ONLY").ok().and_then(|v| v.parse().ok());
     for _ in 0..rounds {
         for (k, (_, pass)) in passes.iter_mut().enumerate() {
-            if only.is_some_and(|o| o != k) {
-                t[k].push(f64::NAN);
-                continue;
-            }
             let (started, cpu) = (std::time::Instant::now(), thread_cpu_s());
             n[k] = std::hint::black_box(pass(&mut g));
             let wall = started.elapsed().as_secs_f64();
@@ -228,11 +193,11 @@ fn interleaved(rounds: usize) {
         }
     }
     let rates: Vec<f64> = t.iter_mut().zip(&n).map(|(v, &c)| c as f64 / median(v) / 1e6).collect();
-    let peer = rates[6];
+    let peer = rates[passes.iter().position(|(name, _)| name.starts_with("peer: random")).expect("peer")];
     let clock = if thread_cpu_s().is_some() { "thread CPU time" } else { "wall time" };
     println!("{rounds} interleaved rounds, medians of {clock}; {cells} cell updates per pass");
     for ((name, _), r) in passes.iter().zip(&rates) {
-        println!("{name:28} {r:8.1} M cell updates/s  ({:.2} of random increments)", r / peer);
+        println!("{name:30} {r:8.1} M cell updates/s  ({:.2} of random increments)", r / peer);
     }
 }
 
