@@ -25,9 +25,11 @@
 //! fraction, subtract, repeat. The complex gain absorbs the phase change of
 //! a reflection off an absorbing panel.
 
-use rustfft::FftPlanner;
 /// Complex samples of impulse responses (re-exported for the facade).
 pub use rustfft::num_complex::Complex64;
+use rustfft::{Fft, FftPlanner};
+use std::cell::RefCell;
+use std::sync::Arc;
 
 /// The system response used as the atom of matching pursuit.
 #[derive(Debug, Clone, PartialEq)]
@@ -138,23 +140,35 @@ fn vertex(l: f64, c: f64, r: f64) -> f64 {
     if den.abs() < 1e-300 || !den.is_finite() { 0.0 } else { (0.5 * (l - r) / den).clamp(-0.5, 0.5) }
 }
 
+thread_local! {
+    /// FFT plans reused across chirps (planning a size costs more than
+    /// running it once).
+    static PLANNER: RefCell<FftPlanner<f64>> = RefCell::new(FftPlanner::new());
+}
+
+fn plan(n: usize, inverse: bool) -> Arc<dyn Fft<f64>> {
+    PLANNER.with(|p| {
+        let mut p = p.borrow_mut();
+        if inverse { p.plan_fft_inverse(n) } else { p.plan_fft_forward(n) }
+    })
+}
+
 /// The atom delayed by `frac` ∈ [0, 1) samples (phase ramp in the frequency
 /// domain; the atom is zero-padded so the circular shift does not wrap).
 struct Shifter {
     spectrum: Vec<Complex64>,
     n: usize,
     len: usize,
-    planner: FftPlanner<f64>,
+    inverse: Arc<dyn Fft<f64>>,
 }
 
 impl Shifter {
     fn new(atom: &[Complex64]) -> Self {
         let len = atom.len() + 4;
         let n = (2 * len).next_power_of_two();
-        let mut planner = FftPlanner::new();
         let mut buf: Vec<Complex64> = (0..n).map(|i| atom.get(i).copied().unwrap_or_default()).collect();
-        planner.plan_fft_forward(n).process(&mut buf);
-        Self { spectrum: buf, n, len, planner }
+        plan(n, false).process(&mut buf);
+        Self { spectrum: buf, n, len, inverse: plan(n, true) }
     }
     fn shifted(&mut self, frac: f64) -> Vec<Complex64> {
         let n = self.n;
@@ -167,7 +181,7 @@ impl Shifter {
                 s * Complex64::from_polar(1.0 / n as f64, -std::f64::consts::TAU * f * frac)
             })
             .collect();
-        self.planner.plan_fft_inverse(n).process(&mut buf);
+        self.inverse.process(&mut buf);
         buf.truncate(self.len);
         buf
     }
@@ -181,8 +195,7 @@ fn correlate_all(res: &[Complex64], atom: &[Complex64], energy: f64) -> Vec<Comp
         return Vec::new();
     }
     let n = (res.len() + la).next_power_of_two();
-    let mut planner = FftPlanner::new();
-    let fwd = planner.plan_fft_forward(n);
+    let fwd = plan(n, false);
     let mut r: Vec<Complex64> = (0..n).map(|i| res.get(i).copied().unwrap_or_default()).collect();
     let mut a: Vec<Complex64> = (0..n).map(|i| atom.get(i).copied().unwrap_or_default()).collect();
     fwd.process(&mut r);
@@ -190,7 +203,7 @@ fn correlate_all(res: &[Complex64], atom: &[Complex64], energy: f64) -> Vec<Comp
     for (x, y) in r.iter_mut().zip(&a) {
         *x *= y.conj();
     }
-    planner.plan_fft_inverse(n).process(&mut r);
+    plan(n, true).process(&mut r);
     let s = 1.0 / (n as f64 * energy);
     r.truncate(res.len() - la + 1);
     r.iter_mut().for_each(|c| *c *= s);

@@ -325,7 +325,8 @@ pub struct RoomReport {
     pub echoes: Vec<RoomEcho>,
     /// Echoes found in at least half of the chirps, by path difference.
     pub clusters: Vec<EchoCluster>,
-    /// The echogram: `(path difference m, level dB re direct)`, median over chirps.
+    /// The echogram: `(path difference m, level dB re direct)`, median over
+    /// chirps (at most [`ECHOGRAM_CHIRPS`], evenly spread).
     pub echogram: Vec<(f64, f64)>,
     /// Predicted floor/ceiling echoes `(label, Δd)`.
     pub predicted: Vec<(&'static str, f64)>,
@@ -412,6 +413,7 @@ pub fn room_echoes(prep: &RoomPrepared, geom: &RoomGeometry, opts: &EchoOptions)
     let tail = max_lag.ceil() as usize + atom_len + head;
     let mut ex = IrExtractor::new(&prep.kernel, head, tail);
     let mut picker = Picker::new(geom, opts, fs, a, prep.max_delta_d_m);
+    picker.gram_every = onsets.len().div_ceil(ECHOGRAM_CHIRPS).max(1);
     for (k, &onset) in onsets.iter().enumerate() {
         let ir = ex.extract(&prep.x, onset);
         picker.add(k, onset as f64 / fs, &ir, direct_search(head, pre));
@@ -465,8 +467,14 @@ struct Picker<'a> {
     echoes: Vec<RoomEcho>,
     /// Envelope in dB per lag bin (lag = index − pre relative to the direct), per chirp.
     gram: Vec<Vec<f64>>,
+    /// Every how many chirps one enters the echogram (at most
+    /// [`ECHOGRAM_CHIRPS`] do, so an hour's median stays small).
+    gram_every: usize,
     found: usize,
 }
+
+/// Most chirps whose envelopes the echogram's median is taken over.
+pub const ECHOGRAM_CHIRPS: usize = 101;
 
 impl<'a> Picker<'a> {
     fn new(geom: &'a RoomGeometry, opts: &'a EchoOptions, fs: f64, a: f64, max_dd: f64) -> Self {
@@ -481,6 +489,7 @@ impl<'a> Picker<'a> {
             predicted: geom.predicted(),
             echoes: Vec::new(),
             gram: Vec::new(),
+            gram_every: 1,
             found: 0,
         }
     }
@@ -518,7 +527,7 @@ impl<'a> Picker<'a> {
         // Echogram: envelope re the direct peak, from `pre` samples before it.
         let d = direct_index.round().max(0.0) as usize;
         let peak = ir.get(d).map_or(0.0, |c| c.norm());
-        if peak > 0.0 {
+        if peak > 0.0 && chirp % self.gram_every == 0 {
             let n = (params.max_lag.ceil() as usize + 1 + pre).min(ir.len().saturating_sub(d.saturating_sub(pre)));
             let lo = d.saturating_sub(pre);
             self.gram.push(ir[lo..lo + n].iter().map(|c| 20.0 * (c.norm() / peak).max(1e-9).log10()).collect());
