@@ -353,11 +353,16 @@ pub fn pursue(ir: &[Complex64], atom: &SystemResponse, p: &PursuitParams) -> Opt
     Some(Pursuit { direct_index: direct_start + pk as f64, direct_gain: g0, arrivals })
 }
 
+/// Sub-sample position of the correlation peak at `k`: the vertex of the
+/// parabola through the log magnitudes (exact for a Gaussian envelope, as
+/// in [`crate::spectrum::peak_in`]).
 fn refine(corr: &[Complex64], k: usize) -> f64 {
     if k == 0 || k + 1 >= corr.len() {
         return k as f64;
     }
-    k as f64 + vertex(corr[k - 1].norm(), corr[k].norm(), corr[k + 1].norm())
+    let m = corr[k].norm();
+    let l = |c: Complex64| c.norm().max(m * 1e-12).max(1e-300).ln();
+    k as f64 + vertex(l(corr[k - 1]), l(corr[k]), l(corr[k + 1]))
 }
 
 #[cfg(test)]
