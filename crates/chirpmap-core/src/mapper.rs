@@ -405,9 +405,11 @@ impl Mapper for AccumulationMapper {
         &self.grid
     }
     fn highlights(&self) -> Vec<Highlight> {
-        let mut g = self.grid.clone();
-        threshold(&mut g.data, self.params.keep_top, self.params.min_of_max);
-        local_maxima(&g, self.params.peak_radius_cells())
+        let mut scratch = Vec::new();
+        // `threshold_floor` is None only when every cell is 0: no highlight.
+        let floor = threshold_floor(&self.grid.data, self.params.keep_top, self.params.min_of_max, &mut scratch);
+        floor
+            .map_or_else(Vec::new, |f| local_maxima_above(&self.grid, self.params.peak_radius_cells(), f, &mut scratch))
     }
 }
 
@@ -439,21 +441,30 @@ pub fn add_ellipse(e: &Ellipse, spec: &GridSpec, data: &mut [f64], w: f64) -> u6
 /// the non-zero cells and cells below `min_of_max · max`. The quantile is the
 /// value at rank ⌊(1 − keep_top)·n⌋ (0-based, ascending) of the n non-zero cells.
 pub fn threshold(data: &mut [f64], keep_top: f64, min_of_max: f64) {
-    let mut nonzero: Vec<f64> = data.iter().copied().filter(|v| *v != 0.0).collect();
-    if nonzero.is_empty() {
-        return;
-    }
-    let n = nonzero.len();
-    let rank = (((1.0 - keep_top) * n as f64).floor() as usize).min(n - 1);
-    let (_, q, _) = nonzero.select_nth_unstable_by(rank, f64::total_cmp);
-    let quantile = *q;
-    let max = data.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-    let floor = quantile.max(min_of_max * max);
-    for v in data.iter_mut() {
-        if *v < floor {
-            *v = 0.0;
+    if let Some(floor) = threshold_floor(data, keep_top, min_of_max, &mut Vec::new()) {
+        for v in data.iter_mut() {
+            if *v < floor {
+                *v = 0.0;
+            }
         }
     }
+}
+
+/// The value below which [`threshold`] zeroes a cell, without changing the
+/// data (`None` when no cell is non-zero: nothing changes). `scratch`
+/// receives the non-zero values (kept for its capacity).
+pub fn threshold_floor(data: &[f64], keep_top: f64, min_of_max: f64, scratch: &mut Vec<f64>) -> Option<f64> {
+    scratch.clear();
+    scratch.extend(data.iter().copied().filter(|v| *v != 0.0));
+    if scratch.is_empty() {
+        return None;
+    }
+    let n = scratch.len();
+    let rank = (((1.0 - keep_top) * n as f64).floor() as usize).min(n - 1);
+    let (_, q, _) = scratch.select_nth_unstable_by(rank, f64::total_cmp);
+    let quantile = *q;
+    let max = data.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    Some(quantile.max(min_of_max * max))
 }
 
 /// Running maximum over windows of `2r+1` elements (van Herk / Gil–Werman):
@@ -488,47 +499,9 @@ fn window_max_1d(src: &[f64], r: usize, out: &mut [f64], pad: &mut Vec<f64>, g: 
     }
 }
 
-/// Window maximum over whole rows at once (the vertical pass), so every
-/// operation runs along contiguous memory.
-fn window_max_rows(src: &[f64], nx: usize, ny: usize, r: usize) -> Vec<f64> {
-    let k = 2 * r + 1;
-    let m = ny + 2 * r;
-    let zero = vec![0.0; nx];
-    let row = |p: usize| if p >= r && p < r + ny { &src[(p - r) * nx..(p - r + 1) * nx] } else { &zero[..] };
-    let mut g = vec![0.0; m * nx];
-    let mut h = vec![0.0; m * nx];
-    for p in 0..m {
-        let (prev, cur) = g.split_at_mut(p * nx);
-        let cur = &mut cur[..nx];
-        if p % k == 0 {
-            cur.copy_from_slice(row(p));
-        } else {
-            let prev = &prev[(p - 1) * nx..];
-            for ((c, a), b) in cur.iter_mut().zip(prev).zip(row(p)) {
-                *c = a.max(*b);
-            }
-        }
-    }
-    for p in (0..m).rev() {
-        let (cur, next) = h.split_at_mut((p + 1) * nx);
-        let cur = &mut cur[p * nx..];
-        if p % k == k - 1 || p == m - 1 {
-            cur.copy_from_slice(row(p));
-        } else {
-            for ((c, a), b) in cur.iter_mut().zip(&next[..nx]).zip(row(p)) {
-                *c = a.max(*b);
-            }
-        }
-    }
-    let mut out = vec![0.0; nx * ny];
-    for j in 0..ny {
-        let (hr, gr) = (&h[j * nx..(j + 1) * nx], &g[(j + 2 * r) * nx..(j + 2 * r + 1) * nx]);
-        for ((o, a), b) in out[j * nx..(j + 1) * nx].iter_mut().zip(hr).zip(gr) {
-            *o = a.max(*b);
-        }
-    }
-    out
-}
+/// Columns per strip of [`local_maxima_above`]'s vertical pass: its two van
+/// Herk buffers hold `(ny + 2r) · STRIP` values, small enough for the cache.
+const STRIP: usize = 64;
 
 /// Highlights: non-zero cells equal to the maximum of the (2r+1)² square
 /// window around them (Algorithm 1's "local maxima within ⌊5/w⌋ bins"), in
@@ -536,42 +509,112 @@ fn window_max_rows(src: &[f64], nx: usize, ny: usize, r: usize) -> Vec<f64> {
 /// a tied cell is dropped when an earlier (raster order) highlight of the
 /// same value lies within its window.
 pub fn local_maxima(g: &Grid, r: usize) -> Vec<Highlight> {
+    local_maxima_above(g, r, f64::NEG_INFINITY, &mut Vec::new())
+}
+
+/// [`local_maxima`] of the grid with every cell below `floor` taken as 0 (the
+/// map [`threshold`] with that floor would leave), without copying the grid:
+/// Algorithm 1's highlights are `local_maxima_above(grid, r, threshold_floor(..))`.
+/// `scratch` is the one grid-sized buffer (the horizontal pass's window
+/// maxima), kept for reuse; the vertical pass runs in strips of [`STRIP`]
+/// columns and keeps only the candidate cells.
+pub fn local_maxima_above(g: &Grid, r: usize, floor: f64, scratch: &mut Vec<f64>) -> Vec<Highlight> {
     let GridSpec { nx, ny, .. } = g.spec;
     if nx == 0 || ny == 0 {
         return Vec::new();
     }
     let r = r.min(nx.max(ny));
-    let mut row_max = vec![0.0; nx * ny];
-    let (mut pad, mut gbuf, mut hbuf) = (Vec::new(), Vec::new(), Vec::new());
+    let value = |v: f64| if v < floor { 0.0 } else { v };
+    // Horizontal pass: the maximum of each row's window around each cell.
+    let row_max = scratch;
+    row_max.clear();
+    row_max.resize(nx * ny, 0.0);
+    let (mut row, mut pad, mut gbuf, mut hbuf) = (Vec::with_capacity(nx), Vec::new(), Vec::new(), Vec::new());
+    // Strips holding a cell at or above the floor: only they can hold a highlight.
+    let mut strip_live = vec![false; nx.div_ceil(STRIP)];
     for j in 0..ny {
-        let row = &g.data[j * nx..(j + 1) * nx];
-        window_max_1d(row, r, &mut row_max[j * nx..(j + 1) * nx], &mut pad, &mut gbuf, &mut hbuf);
+        let src = &g.data[j * nx..(j + 1) * nx];
+        if src.iter().all(|&v| value(v) <= 0.0) {
+            continue; // window maxima of an all-zero row: 0, as initialised
+        }
+        row.clear();
+        row.extend(src.iter().map(|&v| value(v)));
+        for (k, c) in row.chunks(STRIP).enumerate() {
+            strip_live[k] |= c.iter().any(|v| *v > 0.0);
+        }
+        window_max_1d(&row, r, &mut row_max[j * nx..(j + 1) * nx], &mut pad, &mut gbuf, &mut hbuf);
     }
-    let win_max = window_max_rows(&row_max, nx, ny, r);
-    drop(row_max);
+    // Vertical pass, strip by strip (van Herk along columns): candidates are
+    // positive cells equal to their window's maximum.
+    let k = 2 * r + 1;
+    let m = ny + 2 * r;
+    let mut candidates: Vec<(usize, usize, f64)> = Vec::new();
+    let (mut gs, mut hs) = (Vec::new(), Vec::new());
+    for (strip, _) in strip_live.iter().enumerate().filter(|(_, live)| **live) {
+        let c0 = strip * STRIP;
+        let w = STRIP.min(nx - c0);
+        // Padded row p of the strip: grid row p − r, zeros outside.
+        let src = |p: usize| (p >= r && p < r + ny).then(|| &row_max[(p - r) * nx + c0..(p - r) * nx + c0 + w]);
+        gs.clear();
+        gs.resize(m * w, 0.0);
+        hs.clear();
+        hs.resize(m * w, 0.0);
+        for p in 0..m {
+            let (prev, cur) = gs.split_at_mut(p * w);
+            let cur = &mut cur[..w];
+            match (p % k == 0, src(p)) {
+                (true, Some(s)) => cur.copy_from_slice(s),
+                (true, None) => {}
+                (false, s) => {
+                    let prev = &prev[(p - 1) * w..];
+                    for (i, c) in cur.iter_mut().enumerate() {
+                        *c = prev[i].max(s.map_or(0.0, |s| s[i]));
+                    }
+                }
+            }
+        }
+        for p in (0..m).rev() {
+            let (cur, next) = hs.split_at_mut((p + 1) * w);
+            let cur = &mut cur[p * w..];
+            match (p % k == k - 1 || p == m - 1, src(p)) {
+                (true, Some(s)) => cur.copy_from_slice(s),
+                (true, None) => {}
+                (false, s) => {
+                    for (i, c) in cur.iter_mut().enumerate() {
+                        *c = next[i].max(s.map_or(0.0, |s| s[i]));
+                    }
+                }
+            }
+        }
+        for j in 0..ny {
+            let (hr, gr) = (&hs[j * w..(j + 1) * w], &gs[(j + 2 * r) * w..(j + 2 * r + 1) * w]);
+            for i in 0..w {
+                let v = value(g.data[j * nx + c0 + i]);
+                if v > 0.0 && v == hr[i].max(gr[i]) {
+                    candidates.push((c0 + i, j, v));
+                }
+            }
+        }
+    }
+    // Raster order, then one highlight per plateau window.
+    candidates.sort_unstable_by_key(|&(i, j, _)| (j, i));
     let bucket = r + 1;
     // Kept highlights `(i, j, value)`, bucketed by (i, j) / (r + 1).
     type Buckets = std::collections::HashMap<(usize, usize), Vec<(usize, usize, f64)>>;
     let mut kept = Buckets::default();
     let mut out = Vec::new();
-    for j in 0..ny {
-        for i in 0..nx {
-            let v = g.data[j * nx + i];
-            if !(v > 0.0 && v == win_max[j * nx + i]) {
-                continue;
-            }
-            let (bi, bj) = (i / bucket, j / bucket);
-            let tied = (bj.saturating_sub(1)..=bj + 1).any(|qj| {
-                (bi.saturating_sub(1)..=bi + 1).any(|qi| {
-                    kept.get(&(qi, qj)).is_some_and(|cells| {
-                        cells.iter().any(|&(ci, cj, cv)| cv == v && ci.abs_diff(i) <= r && cj.abs_diff(j) <= r)
-                    })
+    for (i, j, v) in candidates {
+        let (bi, bj) = (i / bucket, j / bucket);
+        let tied = (bj.saturating_sub(1)..=bj + 1).any(|qj| {
+            (bi.saturating_sub(1)..=bi + 1).any(|qi| {
+                kept.get(&(qi, qj)).is_some_and(|cells| {
+                    cells.iter().any(|&(ci, cj, cv)| cv == v && ci.abs_diff(i) <= r && cj.abs_diff(j) <= r)
                 })
-            });
-            if !tied {
-                kept.entry((bi, bj)).or_default().push((i, j, v));
-                out.push(Highlight { pos: g.spec.cell_center(i, j), value: v });
-            }
+            })
+        });
+        if !tied {
+            kept.entry((bi, bj)).or_default().push((i, j, v));
+            out.push(Highlight { pos: g.spec.cell_center(i, j), value: v });
         }
     }
     out
@@ -647,6 +690,32 @@ mod tests {
             }
             let got: Vec<_> = local_maxima(&g, r).iter().map(|h| g.spec.cell_of(h.pos).unwrap()).collect();
             proptest::prop_assert_eq!(got, naive_maxima(&g, r));
+        }
+    }
+
+    proptest::proptest! {
+        /// Thresholding on the fly equals thresholding a copy, on grids wide
+        /// enough for several strips of the vertical pass.
+        #[test]
+        fn local_maxima_above_match_naive_on_a_thresholded_copy(
+            nx in 1usize..150, ny in 1usize..30, r in 0usize..9, seed in 0u64..1000, levels in 1u64..8,
+            keep_top in 0.05..1.0f64,
+        ) {
+            let mut g = Grid::zeros(GridSpec { x_min_m: 0.0, y_min_m: 0.0, cell_m: 0.1, nx, ny });
+            let mut x = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            for v in &mut g.data {
+                x = x.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+                *v = ((x >> 33) % (levels + 1)) as f64;
+            }
+            let mut copy = g.clone();
+            threshold(&mut copy.data, keep_top, 0.01);
+            let want = naive_maxima(&copy, r);
+            let floor = threshold_floor(&g.data, keep_top, 0.01, &mut Vec::new()).unwrap_or(f64::INFINITY);
+            let got: Vec<_> = local_maxima_above(&g, r, floor, &mut Vec::new())
+                .iter()
+                .map(|h| g.spec.cell_of(h.pos).unwrap())
+                .collect();
+            proptest::prop_assert_eq!(got, want);
         }
     }
 
