@@ -527,7 +527,7 @@ impl<'a> Picker<'a> {
         // Echogram: envelope re the direct peak, from `pre` samples before it.
         let d = direct_index.round().max(0.0) as usize;
         let peak = ir.get(d).map_or(0.0, |c| c.norm());
-        if peak > 0.0 && chirp % self.gram_every == 0 {
+        if peak > 0.0 && chirp.is_multiple_of(self.gram_every) {
             let n = (params.max_lag.ceil() as usize + 1 + pre).min(ir.len().saturating_sub(d.saturating_sub(pre)));
             let lo = d.saturating_sub(pre);
             self.gram.push(ir[lo..lo + n].iter().map(|c| 20.0 * (c.norm() / peak).max(1e-9).log10()).collect());
