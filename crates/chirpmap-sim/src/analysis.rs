@@ -231,6 +231,10 @@ fn pending_delta_d(r: &Resolved, p: &Pending, dd_rate: f64) -> Option<f64> {
     r.sweep.delta_d_m(p.f_direct_hz / sd, p.f_reflected_hz / sr, a)
 }
 
+/// Gate (m) linking two readings of one track, besides the raw track's
+/// largest drift 4|v|·Δt.
+const TRACK_GATE_M: f64 = 0.3;
+
 /// Longest gap (s) between two readings of one track, besides three
 /// measurement periods.
 const TRACK_GAP_S: f64 = 0.03;
@@ -282,18 +286,26 @@ fn doppler_corrected(r: &Resolved, pending: &[Pending]) -> Vec<Option<f64>> {
         let mi = raw[i]?;
         let p = &pending[i];
         let k = slot_of[i];
-        let kk = if later { k + 1 } else { k.checked_sub(1)? };
-        let dt = (times.get(kk)? - p.t_s).abs();
-        if dt > max_gap {
-            return None;
+        // The next measurement holding a reading within the gate, up to
+        // `max_gap` away (a 1 ms spectrum may miss a weak reflection).
+        let mut kk = k;
+        loop {
+            kk = if later { kk + 1 } else { kk.checked_sub(1)? };
+            let dt = (times.get(kk)? - p.t_s).abs();
+            if dt > max_gap {
+                return None;
+            }
+            let gate = TRACK_GATE_M + 4.0 * p.speed_mps * dt;
+            let best = by_time[kk]
+                .iter()
+                .filter_map(|&j| raw[j].map(|mj| (j, (mj - mi).abs())))
+                .filter(|(_, e)| *e <= gate)
+                .min_by(|a, b| a.1.total_cmp(&b.1))
+                .map(|(j, _)| j);
+            if best.is_some() {
+                return best;
+            }
         }
-        let gate = 0.3 + 4.0 * p.speed_mps * dt;
-        by_time[kk]
-            .iter()
-            .filter_map(|&j| raw[j].map(|mj| (j, (mj - mi).abs())))
-            .filter(|(_, e)| *e <= gate)
-            .min_by(|a, b| a.1.total_cmp(&b.1))
-            .map(|(j, _)| j)
     };
     // y = h·Δd along each track, from the track's end inward:
     // y′ = (g/h)·y − m with g = ḣ + 1 (0 for a linear sweep heard without
