@@ -1,0 +1,14 @@
+#!/usr/bin/env bash
+# chirpmap against Python peers, side by side (issue 14): builds the release CLI, makes a
+# venv with numpy and scipy (requirements.txt), runs bench.py. Not part of CI.
+# Usage: scripts/bench-vs-python/run.sh [--reps N] [--echoes N] [--band-echoes N]
+# Environment: VENV (default target/bench-vs-python-venv), PYTHON (default python3).
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+venv=${VENV:-target/bench-vs-python-venv}
+if [ ! -x "$venv/bin/python" ]; then
+  "${PYTHON:-python3}" -m venv "$venv"
+  "$venv/bin/pip" install --quiet -r scripts/bench-vs-python/requirements.txt
+fi
+cargo build --release -p chirpmap-cli
+"$venv/bin/python" scripts/bench-vs-python/bench.py --chirpmap target/release/chirpmap "$@"
