@@ -17,7 +17,7 @@ the K strongest), with the same criterion (one "chirp": the RIR).
 
 Usage: python3 scripts/rooms/dechorate_eval.py [--bin target/release/chirpmap]
        [--work /tmp/rooms-eval] [--chirps 10] [--snr 30] [--seed 1] [--echoes 10]
-       [--extra "--ringing-ms 2"] [--input wav|rir]
+       [--extra "--ringing-ms 2"] [--input wav|rir] [--sweep linear|exponential]
 Needs numpy and scipy. Deterministic for a given seed.
 """
 import argparse, csv, json, os, subprocess, sys
@@ -34,10 +34,14 @@ SIDES = ['x0', 'xL', 'y0', 'yL']
 TOL = 0.03
 
 
-def chirp(T=1.0, f0=10000.0, f1=200.0, taper=0.005):
+def chirp(T=1.0, f0=10000.0, f1=200.0, taper=0.005, kind='linear'):
     n = int(round(T * FS))
     t = np.arange(n) / FS
-    ph = f0 * t + 0.5 * (f1 - f0) / T * t * t
+    if kind == 'linear':
+        ph = f0 * t + 0.5 * (f1 - f0) / T * t * t
+    else:  # exponential, as chirpmap_core::ExponentialChirp
+        k = np.log(f1 / f0) / T
+        ph = f0 * (np.exp(k * t) - 1.0) / k
     g = np.ones(n)
     m = int(taper * FS)
     edge = 0.5 - 0.5 * np.cos(np.pi * np.arange(m) / m)
@@ -46,8 +50,8 @@ def chirp(T=1.0, f0=10000.0, f1=200.0, taper=0.005):
     return g * np.sin(2 * np.pi * (ph - np.floor(ph)))
 
 
-def recording(h, n_chirps, snr_db, seed, T=1.0, gap=1.0, start=0.5, tail=0.5):
-    s = chirp(T)
+def recording(h, n_chirps, snr_db, seed, T=1.0, gap=1.0, start=0.5, tail=0.5, kind='linear'):
+    s = chirp(T, kind=kind)
     period = int(round((T + gap) * FS))
     L = int(round(start * FS)) + n_chirps * period + int(round(tail * FS))
     x = np.zeros(L)
@@ -100,6 +104,7 @@ def main():
     ap.add_argument('--echoes', type=int, default=10)
     ap.add_argument('--input', default='wav', choices=['wav', 'rir'])
     ap.add_argument('--extra', default='')
+    ap.add_argument('--sweep', default='linear', choices=['linear', 'exponential'])
     args = ap.parse_args()
     os.makedirs(args.work, exist_ok=True)
     tally = {'ours': [0, 0, 0, 0], 'baseline': [0, 0, 0, 0]}
@@ -113,9 +118,9 @@ def main():
         mic = '%s,%s,%s' % (r['mic_x'], r['mic_y'], r['mic_z'])
         if args.input == 'wav':
             wav = os.path.join(args.work, name + '.wav')
-            wavfile.write(wav, FS, recording(h.astype(float), args.chirps, args.snr, args.seed + i))
+            wavfile.write(wav, FS, recording(h.astype(float), args.chirps, args.snr, args.seed + i, kind=args.sweep))
             cmd = [args.bin, 'range', wav, '--duration', '1', '--f-start', '10000', '--f-end', '200',
-                   '--speed-of-sound', str(A), '--method', 'matched', '--max-delta-d', '8']
+                   '--speed-of-sound', str(A), '--method', 'matched', '--max-delta-d', '8', '--sweep', args.sweep]
         else:
             wav = os.path.join(DATA, r['file'])
             cmd = [args.bin, 'range', wav, '--input', 'rir', '--speed-of-sound', str(A), '--max-delta-d', '8']
