@@ -36,9 +36,7 @@ fn fast_and_map(bencher: divan::Bencher) {
         let out = simulate(&r);
         let spec = GridSpec::from_bounds(r.world, r.scene.mapping.cell, u128::MAX).expect("grid");
         let mut m = AccumulationMapper::new(spec, r.scene.mapping).expect("mapper");
-        for e in &out.echoes {
-            m.add_echo(e).expect("echo");
-        }
+        m.add_echoes(&out.echoes).expect("echoes");
         let h: Vec<Point> = m.highlights().iter().map(|h| h.pos).collect();
         (score_obstacle(&r.obstacles, &h), score_highlight(&r.obstacles, &h))
     });
