@@ -115,6 +115,11 @@ pub fn run(args: &RangeArgs) -> Result<()> {
             anyhow::bail!("{flag} applies to --echoes");
         }
     }
+    if args.speaker.z.is_some() || args.mic.z.is_some() {
+        eprintln!(
+            "warning: heights (the Z of --speaker/--mic) are used by --echoes; ranging the first reflection in 2D"
+        );
+    }
     let method = args.method.unwrap_or(Method::Gap);
     let started = Instant::now();
     let fmt = args.plot_format;
