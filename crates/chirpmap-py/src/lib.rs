@@ -249,7 +249,7 @@ fn range(
 /// echoes as an `(n, 8)` or `(n, 9)` table (with `sigma_m`), the chirps
 /// detected and those skipped for want of a pose.
 #[pyfunction]
-#[pyo3(signature = (samples, sample_rate, poses, speaker, method, period_s, frame_s, listener, f_start, f_end, duration, speed_of_sound, max_delta_d))]
+#[pyo3(signature = (samples, sample_rate, poses, speaker, method, period_s, frame_s, listener, f_start, f_end, duration, speed_of_sound, max_delta_d, pattern=None))]
 #[allow(clippy::too_many_arguments)]
 fn echoes_from_recording<'py>(
     py: Python<'py>,
@@ -266,8 +266,12 @@ fn echoes_from_recording<'py>(
     duration: f64,
     speed_of_sound: f64,
     max_delta_d: Option<f64>,
+    pattern: Option<&str>,
 ) -> PyResult<(Bound<'py, PyAny>, usize, usize)> {
-    let method: Method = method.parse().map_err(|e| value_error(format!("method: {e}")))?;
+    let method: chirpmap::audio::doppler::WavMethod =
+        method.parse().map_err(|e| value_error(format!("method: {e}")))?;
+    let pattern: Option<chirpmap::audio::synth::ChirpPattern> =
+        pattern.map(str::parse).transpose().map_err(|e| value_error(format!("pattern: {e}")))?;
     if !(sample_rate.is_finite() && sample_rate > 0.0) {
         return Err(value_error(format!("sample_rate: must be finite and > 0 Hz, got {sample_rate}")));
     }
@@ -283,8 +287,9 @@ fn echoes_from_recording<'py>(
         max_delta_d_m: max_delta_d,
         kind: chirpmap::core::scene::SweepKind::Linear,
     };
-    let params = chirpmap::FrameParams {
+    let opts = chirpmap::audio::doppler::MovingOptions {
         method,
+        pattern,
         period_s,
         frame_s,
         speaker: Point::new(speaker[0], speaker[1]),
@@ -295,7 +300,7 @@ fn echoes_from_recording<'py>(
         .detach(|| -> Result<_, String> {
             let track = chirpmap::PoseTrack::new(rows).map_err(|e| format!("poses: {}", error_text(&e)))?;
             let prep = chirpmap::prepare(x.to_vec(), sample_rate, &chirp).map_err(|e| error_text(&e))?;
-            chirpmap::echoes_from_recording(&prep, &track, &params).map_err(|e| error_text(&e))
+            chirpmap::RecordingEchoes::from_moving(&prep, &chirp, &track, &opts).map_err(|e| error_text(&e))
         })
         .map_err(value_error)?;
     let (rows, cols) = convert::echoes_to_rows(&got.echoes);

@@ -310,6 +310,7 @@ def synth(scene: SceneLike = None) -> Tuple[np.ndarray, int, List[np.ndarray]]:
 
 
 _METHODS = ("gap", "matched", "dechirp")
+_WAV_METHODS = ("doppler", "gap", "dechirp")
 
 
 def range(  # noqa: A001 - the name the issue and the CLI use
@@ -408,7 +409,7 @@ def echoes_from_recording(
     sample_rate: float,
     poses: Any,
     speaker: Sequence[float],
-    method: str = "gap",
+    method: str = "doppler",
     period_ms: float = 10.0,
     frame_ms: Optional[float] = None,
     f_start: float = 10000.0,
@@ -417,6 +418,7 @@ def echoes_from_recording(
     speed_of_sound: float = 343.0,
     max_delta_d: Optional[float] = None,
     channel: int = 0,
+    pattern: Optional[str] = None,
 ) -> RecordingEchoes:
     """Echoes of a moving listener's recording, for :func:`map_echoes`.
 
@@ -432,12 +434,17 @@ def echoes_from_recording(
         poses: ``(m, 3)`` array-like ``t, x, y`` (s, m), as :func:`synth`
             returns per listener and ``chirpmap synth --poses`` writes.
         speaker: speaker position ``(x, y)`` (m).
-        method: ``"gap"`` (the paper's) or ``"dechirp"``.
+        method: ``"doppler"`` (Doppler-corrected for moving listeners, the
+            default, as ``map --wav``'s; issue 11), ``"gap"`` (the paper's,
+            uncorrected) or ``"dechirp"`` (uncorrected).
         period_ms: time between measurements (ms). Paper: 1, 10, 50.
         frame_ms: measurement frame length (ms); default: the method's.
         f_start, f_end, duration, speed_of_sound, max_delta_d: the chirp and
             medium, as for :func:`range`.
         channel: the column of 2-D ``samples``; also the echoes' listener id.
+        pattern: the chirps' sweep directions, ``"down"``, ``"up"`` or
+            ``"updown"`` (alternating, starting down); ``None``: every chirp
+            from ``f_start`` to ``f_end`` (``map --wav --pattern``).
 
     Returns:
         A :class:`RecordingEchoes`.
@@ -446,8 +453,8 @@ def echoes_from_recording(
     p = np.ascontiguousarray(poses, dtype=np.float64)
     if p.ndim != 2 or p.shape[1] != 3:
         raise ValueError(f"poses must be an (m, 3) array t, x, y; got shape {p.shape}")
-    if method not in _METHODS:
-        raise ValueError(f"method: unknown method {method!r}: use gap, matched or dechirp")
+    if method not in _WAV_METHODS:
+        raise ValueError(f"method: unknown method {method!r}: use doppler, gap or dechirp")
     echoes, chirps, skipped = _chirpmap.echoes_from_recording(
         x,
         float(sample_rate),
@@ -462,6 +469,7 @@ def echoes_from_recording(
         float(duration),
         float(speed_of_sound),
         None if max_delta_d is None else float(max_delta_d),
+        pattern,
     )
     return RecordingEchoes(echoes, chirps, skipped)
 

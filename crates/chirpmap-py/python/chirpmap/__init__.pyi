@@ -89,7 +89,7 @@ def echoes_from_recording(
     sample_rate: float,
     poses: npt.ArrayLike,
     speaker: Sequence[float],
-    method: str = "gap",
+    method: str = "doppler",
     period_ms: float = 10.0,
     frame_ms: Optional[float] = None,
     f_start: float = 10000.0,
@@ -98,5 +98,6 @@ def echoes_from_recording(
     speed_of_sound: float = 343.0,
     max_delta_d: Optional[float] = None,
     channel: int = 0,
+    pattern: Optional[str] = None,
 ) -> RecordingEchoes:
     """Echoes of a moving listener's recording (chirpmap map --wav)."""

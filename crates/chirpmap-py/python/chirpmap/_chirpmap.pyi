@@ -51,4 +51,5 @@ def echoes_from_recording(
     duration: float,
     speed_of_sound: float,
     max_delta_d: Optional[float],
+    pattern: Optional[str] = None,
 ) -> Tuple[npt.NDArray[np.float64], int, int]: ...
