@@ -515,15 +515,74 @@ pub fn local_maxima(g: &Grid, r: usize) -> Vec<Highlight> {
 /// [`local_maxima`] of the grid with every cell below `floor` taken as 0 (the
 /// map [`threshold`] with that floor would leave), without copying the grid:
 /// Algorithm 1's highlights are `local_maxima_above(grid, r, threshold_floor(..))`.
-/// `scratch` is the one grid-sized buffer (the horizontal pass's window
-/// maxima), kept for reuse; the vertical pass runs in strips of [`STRIP`]
-/// columns and keeps only the candidate cells.
+/// `scratch` is kept for reuse.
+///
+/// A cell is a candidate when no cell of its window is larger. When few
+/// cells survive the floor (Algorithm 1 keeps the top 10 % of the non-zero
+/// ones), they are bucketed by `(i, j) / (r + 1)`: two cells of one bucket are
+/// always within each other's window, so only a bucket's largest cells need
+/// to look at the 8 neighbouring buckets ([`sparse_candidates`]). Otherwise
+/// the van Herk / Gil–Werman window maximum runs over the whole grid
+/// ([`dense_candidates`]).
 pub fn local_maxima_above(g: &Grid, r: usize, floor: f64, scratch: &mut Vec<f64>) -> Vec<Highlight> {
     let GridSpec { nx, ny, .. } = g.spec;
     if nx == 0 || ny == 0 {
         return Vec::new();
     }
     let r = r.min(nx.max(ny));
+    let survivors = g.data.iter().filter(|&&v| v >= floor && v > 0.0).count();
+    let candidates = if survivors <= g.data.len() / 8 {
+        sparse_candidates(g, r, floor)
+    } else {
+        dense_candidates(g, r, floor, scratch)
+    };
+    thin_plateaus(g, r, candidates)
+}
+
+/// Cells `(i, j, value)` by bucket `(i, j) / (r + 1)`.
+type CellBuckets = std::collections::HashMap<(usize, usize), Vec<(usize, usize, f64)>>;
+
+/// Cells `(i, j, value)` at or above `floor` and positive with no larger
+/// cell at or above `floor` within `r` (Chebyshev), in raster order, by
+/// buckets of `r + 1` cells.
+fn sparse_candidates(g: &Grid, r: usize, floor: f64) -> Vec<(usize, usize, f64)> {
+    let nx = g.spec.nx;
+    let bucket = r + 1;
+    let mut buckets = CellBuckets::default();
+    let mut cells = Vec::new();
+    for (k, &v) in g.data.iter().enumerate() {
+        if v >= floor && v > 0.0 {
+            let (i, j) = (k % nx, k / nx);
+            cells.push((i, j, v));
+            buckets.entry((i / bucket, j / bucket)).or_default().push((i, j, v));
+        }
+    }
+    // Largest first, so a scan stops at the first cell not larger.
+    for list in buckets.values_mut() {
+        list.sort_unstable_by(|a, b| b.2.total_cmp(&a.2));
+    }
+    cells.retain(|&(i, j, v)| {
+        let (bi, bj) = (i / bucket, j / bucket);
+        if buckets[&(bi, bj)][0].2 > v {
+            return false; // a larger cell of the same bucket is within the window
+        }
+        let dominated = (bj.saturating_sub(1)..=bj + 1).any(|qj| {
+            (bi.saturating_sub(1)..=bi + 1).any(|qi| {
+                buckets.get(&(qi, qj)).is_some_and(|list| {
+                    list.iter().take_while(|c| c.2 > v).any(|&(ci, cj, _)| ci.abs_diff(i) <= r && cj.abs_diff(j) <= r)
+                })
+            })
+        });
+        !dominated
+    });
+    cells
+}
+
+/// [`sparse_candidates`] by window maxima over the whole grid: a horizontal
+/// van Herk pass into `scratch` (one grid-sized buffer), then a vertical
+/// one in strips of [`STRIP`] columns that keeps only the candidates.
+fn dense_candidates(g: &Grid, r: usize, floor: f64, scratch: &mut Vec<f64>) -> Vec<(usize, usize, f64)> {
+    let GridSpec { nx, ny, .. } = g.spec;
     let value = |v: f64| if v < floor { 0.0 } else { v };
     // Horizontal pass: the maximum of each row's window around each cell.
     let row_max = scratch;
@@ -596,12 +655,16 @@ pub fn local_maxima_above(g: &Grid, r: usize, floor: f64, scratch: &mut Vec<f64>
             }
         }
     }
-    // Raster order, then one highlight per plateau window.
     candidates.sort_unstable_by_key(|&(i, j, _)| (j, i));
+    candidates
+}
+
+/// One highlight per plateau window: candidates in raster order, a tied
+/// cell dropped when an earlier kept one of the same value lies within `r`.
+fn thin_plateaus(g: &Grid, r: usize, candidates: Vec<(usize, usize, f64)>) -> Vec<Highlight> {
     let bucket = r + 1;
     // Kept highlights `(i, j, value)`, bucketed by (i, j) / (r + 1).
-    type Buckets = std::collections::HashMap<(usize, usize), Vec<(usize, usize, f64)>>;
-    let mut kept = Buckets::default();
+    let mut kept = CellBuckets::default();
     let mut out = Vec::new();
     for (i, j, v) in candidates {
         let (bi, bj) = (i / bucket, j / bucket);
@@ -711,11 +774,13 @@ mod tests {
             threshold(&mut copy.data, keep_top, 0.01);
             let want = naive_maxima(&copy, r);
             let floor = threshold_floor(&g.data, keep_top, 0.01, &mut Vec::new()).unwrap_or(f64::INFINITY);
-            let got: Vec<_> = local_maxima_above(&g, r, floor, &mut Vec::new())
-                .iter()
-                .map(|h| g.spec.cell_of(h.pos).unwrap())
-                .collect();
-            proptest::prop_assert_eq!(got, want);
+            let cells = |h: Vec<Highlight>| h.iter().map(|h| g.spec.cell_of(h.pos).unwrap()).collect::<Vec<_>>();
+            proptest::prop_assert_eq!(cells(local_maxima_above(&g, r, floor, &mut Vec::new())), want.clone());
+            // Both candidate searches, whichever the survivors' count picks.
+            let sparse = thin_plateaus(&g, r, sparse_candidates(&g, r, floor));
+            let dense = thin_plateaus(&g, r, dense_candidates(&g, r, floor, &mut Vec::new()));
+            proptest::prop_assert_eq!(cells(sparse), want.clone());
+            proptest::prop_assert_eq!(cells(dense), want);
         }
     }
 
