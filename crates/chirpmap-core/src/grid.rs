@@ -7,9 +7,12 @@ use crate::geometry::Point;
 /// user gets an error instead of an out-of-memory crash.
 pub const DEFAULT_MEMORY_CAP_BYTES: u128 = 2 << 30;
 
-/// Grid-sized f64 buffers alive at the peak of mapping: the accumulator, the
-/// thresholded copy, and the row-max, two van Herk and window-max buffers of
-/// highlight extraction.
+/// Grid-sized f64 buffers budgeted for mapping: an upper bound. Since issue 14
+/// the paper mapper holds the accumulator and one scratch buffer of highlight
+/// extraction (the non-zero values, then the horizontal window maxima) plus
+/// fixed-size span buffers, and the commands a copy for each map file they
+/// write; the bound stays at the foundation issue's 6 so that the grids
+/// accepted do not change.
 pub const WORKING_COPIES: u128 = 6;
 
 /// Placement of a grid in the world frame. Cell `(i, j)` covers
