@@ -17,6 +17,7 @@ pub mod ranging;
 pub mod rir;
 pub mod spectrum;
 pub mod stats;
+pub mod stream;
 pub mod synth;
 pub mod wav;
 

@@ -372,7 +372,17 @@ fn run_echoes(args: &RangeArgs) -> Result<()> {
         None => ChirpSpec::default(),
     };
     let chirp = args.chirp.spec(base);
-    let (x, fs, clipped) = read_channel(&args.wav, args.chirp.channel)?;
+    // A recording of chirps is read as a stream (issue 14, item 4); only its header here.
+    let (mut x, mut clipped) = (Vec::new(), 0);
+    let fs = if rir {
+        let (xr, fs, c) = read_channel(&args.wav, args.chirp.channel)?;
+        (x, clipped) = (xr, c);
+        fs
+    } else {
+        let head = chirpmap::audio::wav::WavStream::open(&args.wav, args.chirp.channel)
+            .with_context(|| format!("{}", args.wav.display()))?;
+        f64::from(head.sample_rate_hz)
+    };
     if let Some(cal) = &args.calibration {
         let (cx, cfs, _) = read_channel(cal, args.chirp.channel)?;
         if cfs != fs {
@@ -390,8 +400,32 @@ fn run_echoes(args: &RangeArgs) -> Result<()> {
         let max_dd = chirp.max_delta_d_m.unwrap_or(60.0).min(a * x.len() as f64 / fs);
         chirpmap::rir_echoes(&x, fs, a, max_dd, &geom, &opts).map_err(field_err(&args.wav))?
     } else {
-        let prep = chirpmap::prepare_room(x, fs, &chirp).map_err(field_err(&args.wav))?;
-        chirpmap::room_echoes(&prep, &geom, &opts).map_err(field_err(&args.wav))?
+        let streamed = chirpmap::RoomReport::from_wav_stream(&args.wav, args.chirp.channel, &chirp, &geom, &opts)
+            .map_err(field_err(&args.wav))?;
+        match streamed {
+            Some(s) => {
+                clipped = s.clipped_samples;
+                if clipped > 0 {
+                    eprintln!(
+                        "warning: {}: {} sample(s) at full scale (clipping); estimates may be degraded",
+                        args.wav.display(),
+                        clipped
+                    );
+                }
+                s.report
+            }
+            None => {
+                eprintln!(
+                    "note: {}: the level changes too much along the recording for streamed detection; reading it \
+                     into memory",
+                    args.wav.display()
+                );
+                let (xr, _, c) = read_channel(&args.wav, args.chirp.channel)?;
+                clipped = c;
+                let prep = chirpmap::prepare_room(xr, fs, &chirp).map_err(field_err(&args.wav))?;
+                chirpmap::room_echoes(&prep, &geom, &opts).map_err(field_err(&args.wav))?
+            }
+        }
     };
     let listener = args.listener.unwrap_or(u32::try_from(args.chirp.channel).unwrap_or(u32::MAX));
     // echoes.csv: the map's columns, then ours.

@@ -62,6 +62,14 @@ pub fn prepare_room(mut x: Vec<f32>, sample_rate_hz: f64, chirp: &ChirpSpec) -> 
         });
     }
     paper_highpass(sample_rate_hz)?.filter_in_place(&mut x);
+    let max_dd = largest_delta_d(a, chirp, &kernel)?;
+    let duration_s = x.len() as f64 / sample_rate_hz;
+    Ok(RoomPrepared { x, kernel, sample_rate_hz, duration_s, speed_of_sound_mps: a, max_delta_d_m: max_dd })
+}
+
+/// The largest Δd searched: min(60 m, a·T/2), or the chirp's own, kept
+/// below 90 % of a following harmonic's delay.
+fn largest_delta_d(a: f64, chirp: &ChirpSpec, kernel: &SweepKernel) -> Result<f64> {
     let mut max_dd = (0.5 * a * chirp.duration_s).min(60.0);
     if let Some(m) = chirp.max_delta_d_m {
         let most = a * chirp.duration_s;
@@ -78,8 +86,7 @@ pub fn prepare_room(mut x: Vec<f32>, sample_rate_hz: f64, chirp: &ChirpSpec) -> 
     {
         max_dd = max_dd.min(0.9 * a * lag);
     }
-    let duration_s = x.len() as f64 / sample_rate_hz;
-    Ok(RoomPrepared { x, kernel, sample_rate_hz, duration_s, speed_of_sound_mps: a, max_delta_d_m: max_dd })
+    Ok(max_dd)
 }
 
 fn check_speed(a: f64) -> Result<f64> {
@@ -419,6 +426,138 @@ pub fn room_echoes(prep: &RoomPrepared, geom: &RoomGeometry, opts: &EchoOptions)
         picker.add(k, onset as f64 / fs, &ir, direct_search(head, pre));
     }
     Ok(picker.finish(onsets.iter().map(|&o| o as f64 / fs).collect()))
+}
+
+/// A [`RoomReport`] computed from a WAV file read as a stream, with what
+/// was learnt of the file on the way.
+#[derive(Debug, Clone)]
+pub struct StreamedRoom {
+    /// The report, the same as [`prepare_room`] then [`room_echoes`] give.
+    pub report: RoomReport,
+    /// Sample rate (Hz).
+    pub sample_rate_hz: f64,
+    /// Samples at full scale over all channels.
+    pub clipped_samples: usize,
+    /// Largest path difference searched (m).
+    pub max_delta_d_m: f64,
+}
+
+impl RoomReport {
+    /// [`prepare_room`] then [`room_echoes`] on channel `channel` of a WAV
+    /// file, in memory independent of the recording's length (issue 14,
+    /// item 4): the file is read twice as a stream ([`chirpmap_audio::stream`]):
+    /// once for the chirps' detection, once for the correlations the
+    /// detection still needs and each chirp's impulse response from its own
+    /// window. The same report, bit for bit. `Ok(None)`: the recording's
+    /// level changes too much along it for the streamed median (see
+    /// [`chirpmap_audio::stream`]); use the in-memory path.
+    pub fn from_wav_stream(
+        path: &std::path::Path,
+        channel: usize,
+        chirp: &ChirpSpec,
+        geom: &RoomGeometry,
+        opts: &EchoOptions,
+    ) -> Result<Option<StreamedRoom>> {
+        use chirpmap_audio::stream::{Filtered, ScanError, Selection, for_windows, scan_chirps};
+        use chirpmap_audio::wav::WavStream;
+        let open = || WavStream::open(path, channel);
+        let wav = open()?;
+        let fs = f64::from(wav.sample_rate_hz);
+        let n = wav.frames;
+        let n_channels = wav.n_channels;
+        let a = check_speed(chirp.speed_of_sound_mps)?;
+        let kernel = SweepKernel::new(chirp.kind, chirp.f_start_hz, chirp.f_end_hz, chirp.duration_s, fs)?;
+        if kernel.len() > n {
+            return Err(Error::Field {
+                field: "duration",
+                reason: format!(
+                    "the chirp ({} s) is longer than the recording ({:.3} s)",
+                    chirp.duration_s,
+                    n as f64 / fs
+                ),
+            });
+        }
+        let sos = paper_highpass(fs)?;
+        let max_dd = largest_delta_d(a, chirp, &kernel)?;
+        geom.validate()?;
+        opts.validate()?;
+        let tpl = kernel.detection_template()?;
+        let mut src = Filtered::new(wav, &sos);
+        let scanned = scan_chirps(&mut src, n, &tpl, max_dd / a);
+        if !src.any_nonzero_input && !matches!(scanned, Err(ScanError::Audio(chirpmap_audio::AudioError::Truncated(_))))
+        {
+            let hint =
+                if n_channels > 1 { format!(" (it has {n_channels} channels: try --channel)") } else { String::new() };
+            return Err(Error::Invalid(format!("channel {channel} is silent (every sample is zero){hint}")));
+        }
+        let clipped = src.inner().clipped_samples();
+        let scan = match scanned {
+            Ok(s) => s,
+            Err(ScanError::MedianLost) => return Ok(None),
+            Err(ScanError::Audio(e)) => return Err(e.into()),
+        };
+        let m = scan.template_len();
+        let pre = pre_samples(fs);
+        let ringing = ringing_samples(opts, fs);
+        let max_lag = max_dd / a * fs;
+        let atom_len = opts.calibration.as_ref().map_or(pre + ringing, |c| c.samples.len());
+        let head = 4 * pre + 64;
+        let tail = max_lag.ceil() as usize + atom_len + head;
+        let mut ex = IrExtractor::new(&kernel, head, tail);
+        let mut known: std::collections::HashMap<usize, f64> = std::collections::HashMap::new();
+        let mut picked: Option<(Vec<usize>, RoomReport)> = None;
+        loop {
+            let (onsets, need) = match scan.select(&known) {
+                Selection::Done(Err(e)) => return Err(e.into()),
+                Selection::Done(Ok(d)) => {
+                    let onsets: Vec<usize> = d.iter().map(|d| d.onset_sample).collect();
+                    if let Some((p, report)) = picked.take()
+                        && p == onsets
+                    {
+                        return Ok(Some(StreamedRoom {
+                            report,
+                            sample_rate_hz: fs,
+                            clipped_samples: clipped,
+                            max_delta_d_m: max_dd,
+                        }));
+                    }
+                    (onsets, Vec::new())
+                }
+                Selection::Tentative { onsets, need } => (onsets, need),
+            };
+            // Windows: (start, end, what): what < need.len() → a correlation, else a chirp.
+            let mut windows: Vec<(usize, usize, usize)> =
+                need.iter().enumerate().map(|(i, &(lag, _))| (lag, lag + m, i)).collect();
+            windows.extend(
+                onsets.iter().enumerate().map(|(k, &o)| (o.saturating_sub(head), o + m + tail, need.len() + k)),
+            );
+            windows.sort_by_key(|w| w.0);
+            let ranges: Vec<(usize, usize)> = windows.iter().map(|w| (w.0, w.1)).collect();
+            let mut picker = Picker::new(geom, opts, fs, a, max_dd);
+            picker.gram_every = onsets.len().div_ceil(ECHOGRAM_CHIRPS).max(1);
+            let mut src = Filtered::new(open()?, &sos);
+            for_windows(&mut src, n, &ranges, |i, x| {
+                let (start, _, what) = windows[i];
+                if what < need.len() {
+                    known.insert(need[what].0, scan.ncc(x, need[what].1));
+                } else {
+                    let k = what - need.len();
+                    let ir = ex.extract(x, onsets[k] - start);
+                    picker.add(k, onsets[k] as f64 / fs, &ir, direct_search(head, pre));
+                }
+            })?;
+            let report = picker.finish(onsets.iter().map(|&o| o as f64 / fs).collect());
+            if need.is_empty() {
+                return Ok(Some(StreamedRoom {
+                    report,
+                    sample_rate_hz: fs,
+                    clipped_samples: clipped,
+                    max_delta_d_m: max_dd,
+                }));
+            }
+            picked = Some((onsets, report));
+        }
+    }
 }
 
 /// Picks every echo of an impulse response given directly (`range --input
