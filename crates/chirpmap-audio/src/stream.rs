@@ -24,13 +24,27 @@ use std::collections::{BTreeMap, HashMap};
 pub trait BlockSource {
     /// Appends up to `max` samples to `out` and returns how many (0 at the end).
     fn read(&mut self, out: &mut Vec<f32>, max: usize) -> Result<usize, AudioError>;
+    /// Moves to a position at or before sample `pos` from which reading
+    /// gives the same samples as reading through, and returns it; `None`:
+    /// the source cannot move (it keeps its position).
+    fn seek_before(&mut self, pos: usize) -> Result<Option<usize>, AudioError> {
+        let _ = pos;
+        Ok(None)
+    }
 }
 
 impl BlockSource for crate::wav::WavStream {
     fn read(&mut self, out: &mut Vec<f32>, max: usize) -> Result<usize, AudioError> {
         self.read_block(out, max)
     }
+    fn seek_before(&mut self, pos: usize) -> Result<Option<usize>, AudioError> {
+        self.seek_frame(pos)?;
+        Ok(Some(pos.min(self.frames)))
+    }
 }
+
+/// The filter's state before one block: (sample index, state per section).
+pub type Checkpoint = (usize, Vec<(f64, f64)>);
 
 /// A [`BlockSource`] high-passed by a cascade of biquads whose state is
 /// carried across blocks: the same arithmetic, in the same order, as
@@ -42,6 +56,10 @@ pub struct Filtered<S> {
     state: Vec<(f64, f64)>,
     /// Whether any input sample (before filtering) was not zero.
     pub any_nonzero_input: bool,
+    pos: usize,
+    /// The state before every block read from the start (recorded on the
+    /// first read through), so that a second read can start mid-stream.
+    pub checkpoints: Vec<Checkpoint>,
 }
 
 impl<S: BlockSource> Filtered<S> {
@@ -52,7 +70,14 @@ impl<S: BlockSource> Filtered<S> {
             sections: sos.sections.clone(),
             state: vec![(0.0, 0.0); sos.sections.len()],
             any_nonzero_input: false,
+            pos: 0,
+            checkpoints: Vec::new(),
         }
+    }
+    /// `inner` filtered from the states recorded by a previous read
+    /// through the same samples (see [`Filtered::checkpoints`]).
+    pub fn resume(inner: S, sos: &Sos, checkpoints: Vec<Checkpoint>) -> Self {
+        Self { checkpoints, ..Self::new(inner, sos) }
     }
     /// The unfiltered source.
     pub fn inner(&self) -> &S {
@@ -62,24 +87,66 @@ impl<S: BlockSource> Filtered<S> {
 
 impl<S: BlockSource> BlockSource for Filtered<S> {
     fn read(&mut self, out: &mut Vec<f32>, max: usize) -> Result<usize, AudioError> {
+        if self.checkpoints.last().is_none_or(|c| c.0 < self.pos) {
+            self.checkpoints.push((self.pos, self.state.clone()));
+        }
         let start = out.len();
         let n = self.inner.read(out, max)?;
+        self.pos += n;
         let block = &mut out[start..];
         if !self.any_nonzero_input {
             self.any_nonzero_input = block.iter().any(|v| *v != 0.0);
         }
-        for (s, (z1, z2)) in self.sections.iter().zip(self.state.iter_mut()) {
-            let [b0, b1, b2] = s.b;
-            let [_, a1, a2] = s.a;
+        if let ([s1, s2], [st1, st2]) = (self.sections.as_slice(), self.state.as_mut_slice()) {
+            // Two sections (the paper's order-4 high-pass) interleaved per
+            // sample: the same operations as section after section, with the
+            // two recursions overlapping in the processor.
+            let ([b0, b1, b2], [_, a1, a2]) = (s1.b, s1.a);
+            let ([c0, c1, c2], [_, d1, d2]) = (s2.b, s2.a);
+            let ((mut z1, mut z2), (mut w1, mut w2)) = (*st1, *st2);
             for v in block.iter_mut() {
                 let xi = f64::from(*v);
-                let y = b0 * xi + *z1;
-                *z1 = b1 * xi - a1 * y + *z2;
-                *z2 = b2 * xi - a2 * y;
+                let y = b0 * xi + z1;
+                z1 = b1 * xi - a1 * y + z2;
+                z2 = b2 * xi - a2 * y;
+                let u = f64::from(y as f32);
+                let y2 = c0 * u + w1;
+                w1 = c1 * u - d1 * y2 + w2;
+                w2 = c2 * u - d2 * y2;
+                *v = y2 as f32;
+            }
+            (*st1, *st2) = ((z1, z2), (w1, w2));
+            return Ok(n);
+        }
+        for (s, st) in self.sections.iter().zip(self.state.iter_mut()) {
+            let [b0, b1, b2] = s.b;
+            let [_, a1, a2] = s.a;
+            let (mut z1, mut z2) = *st;
+            for v in block.iter_mut() {
+                let xi = f64::from(*v);
+                let y = b0 * xi + z1;
+                z1 = b1 * xi - a1 * y + z2;
+                z2 = b2 * xi - a2 * y;
                 *v = y as f32;
             }
+            *st = (z1, z2);
         }
         Ok(n)
+    }
+
+    fn seek_before(&mut self, pos: usize) -> Result<Option<usize>, AudioError> {
+        let i = self.checkpoints.partition_point(|c| c.0 <= pos);
+        let Some((at, state)) = i.checked_sub(1).and_then(|i| self.checkpoints.get(i)) else { return Ok(None) };
+        if *at <= self.pos {
+            return Ok(None);
+        }
+        let Some(got) = self.inner.seek_before(*at)? else { return Ok(None) };
+        if got != *at {
+            return Ok(None);
+        }
+        self.state.clone_from(state);
+        self.pos = *at;
+        Ok(Some(*at))
     }
 }
 
@@ -447,6 +514,14 @@ pub fn for_windows(
         let start = start.min(end);
         if start < x0 {
             return Err(AudioError::InvalidParam { field: "windows", reason: "not sorted by start".into() });
+        }
+        if start >= x0 + x.len() + BLOCK
+            && let Some(at) = src.seek_before(start)?
+            && at > x0 + x.len()
+        {
+            // Jump over samples no window needs.
+            x.clear();
+            x0 = at;
         }
         let d = (start - x0).min(x.len());
         x.drain(..d);

@@ -312,6 +312,8 @@ pub struct WavStream {
     clipped: usize,
     float_peak: f32,
     raw: Vec<u8>,
+    /// Byte offset of the first sample in the file.
+    data_start: u64,
 }
 
 impl WavStream {
@@ -341,7 +343,7 @@ impl WavStream {
         }
         let mut pos = 12u64;
         let mut fmt: Option<(u16, u16, u32, u16)> = None;
-        let data_len = loop {
+        let (data_start, data_len) = loop {
             reader.seek(SeekFrom::Start(pos)).map_err(io)?;
             let ch = take(&mut reader, 8)?;
             let (Some(id), Some(len)) = (ch.get(0..4), le_u32(&ch, 4)) else {
@@ -380,7 +382,7 @@ impl WavStream {
                             "the data chunk declares {declared} bytes but the file holds {avail} (the file was cut short)"
                         )));
                     }
-                    break declared;
+                    break (body, declared);
                 }
                 _ => {}
             }
@@ -426,7 +428,24 @@ impl WavStream {
             clipped: 0,
             float_peak: 0.0,
             raw: Vec::new(),
+            data_start,
         })
+    }
+
+    /// Continues reading at frame `frame` (at most [`WavStream::frames`]).
+    pub fn seek_frame(&mut self, frame: usize) -> Result<(), AudioError> {
+        use std::io::{Seek, SeekFrom};
+        let frame = frame.min(self.frames);
+        let width = match self.format {
+            SampleFormat::Int(b) => u64::from(b / 8),
+            SampleFormat::Float32 => 4,
+        };
+        let at = self.data_start + frame as u64 * width * self.n_channels as u64;
+        self.reader
+            .seek(SeekFrom::Start(at))
+            .map_err(|e| AudioError::Truncated(format!("cannot seek to frame {frame} ({e})")))?;
+        self.frames_read = frame;
+        Ok(())
     }
 
     /// Samples at (or beyond) full scale so far, over all channels (as

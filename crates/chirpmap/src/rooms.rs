@@ -491,6 +491,7 @@ impl RoomReport {
             return Err(Error::Invalid(format!("channel {channel} is silent (every sample is zero){hint}")));
         }
         let clipped = src.inner().clipped_samples();
+        let checkpoints = std::mem::take(&mut src.checkpoints);
         let scan = match scanned {
             Ok(s) => s,
             Err(ScanError::MedianLost) => return Ok(None),
@@ -535,7 +536,7 @@ impl RoomReport {
             let ranges: Vec<(usize, usize)> = windows.iter().map(|w| (w.0, w.1)).collect();
             let mut picker = Picker::new(geom, opts, fs, a, max_dd);
             picker.gram_every = onsets.len().div_ceil(ECHOGRAM_CHIRPS).max(1);
-            let mut src = Filtered::new(open()?, &sos);
+            let mut src = Filtered::resume(open()?, &sos, checkpoints.clone());
             for_windows(&mut src, n, &ranges, |i, x| {
                 let (start, _, what) = windows[i];
                 if what < need.len() {
