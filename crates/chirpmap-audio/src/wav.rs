@@ -478,41 +478,70 @@ impl WavStream {
             .map_err(|e| AudioError::Truncated(format!("the data chunk ends early while reading ({e})")))?;
         self.frames_read += n;
         out.reserve(n);
-        let (format, channel) = (self.format, self.channel);
-        for frame in self.raw.chunks_exact(frame_bytes) {
-            for (c, s) in frame.chunks_exact(width).enumerate() {
-                let v = match format {
-                    SampleFormat::Int(16) => {
-                        let i = i16::from_le_bytes([s[0], s[1]]);
-                        self.clipped += usize::from(i == i16::MAX || i == i16::MIN);
-                        f32::from(i) / 32_768.0
+        let (n_ch, channel) = (self.n_channels, self.channel);
+        let raw = self.raw.as_slice();
+        // One loop per encoding (the match outside the loop), same decoding as read_wav_bytes.
+        self.clipped += match self.format {
+            SampleFormat::Int(16) => decode::<2>(raw, n_ch, channel, out, |s| {
+                let i = i16::from_le_bytes(s);
+                (f32::from(i) / 32_768.0, i == i16::MAX || i == i16::MIN)
+            }),
+            SampleFormat::Int(24) => decode::<3>(raw, n_ch, channel, out, |s| {
+                let i = i32::from_le_bytes([0, s[0], s[1], s[2]]) >> 8;
+                (i as f32 / 8_388_608.0, i == 8_388_607 || i == -8_388_608)
+            }),
+            SampleFormat::Int(_) => decode::<4>(raw, n_ch, channel, out, |s| {
+                let i = i32::from_le_bytes(s);
+                ((f64::from(i) / 2_147_483_648.0) as f32, i == i32::MAX || i == i32::MIN)
+            }),
+            SampleFormat::Float32 => {
+                let mut peak = self.float_peak;
+                let c = decode::<4>(raw, n_ch, channel, out, |s| {
+                    let f = f32::from_le_bytes(s);
+                    if f.is_finite() {
+                        peak = peak.max(f.abs());
+                        (f, f.abs() >= 1.0)
+                    } else {
+                        (0.0, true)
                     }
-                    SampleFormat::Int(24) => {
-                        let i = i32::from_le_bytes([0, s[0], s[1], s[2]]) >> 8;
-                        self.clipped += usize::from(i == 8_388_607 || i == -8_388_608);
-                        i as f32 / 8_388_608.0
-                    }
-                    SampleFormat::Int(_) => {
-                        let i = i32::from_le_bytes([s[0], s[1], s[2], s[3]]);
-                        self.clipped += usize::from(i == i32::MAX || i == i32::MIN);
-                        (f64::from(i) / 2_147_483_648.0) as f32
-                    }
-                    SampleFormat::Float32 => {
-                        let f = f32::from_le_bytes([s[0], s[1], s[2], s[3]]);
-                        self.clipped += usize::from(!f.is_finite() || f.abs() >= 1.0);
-                        if f.is_finite() {
-                            self.float_peak = self.float_peak.max(f.abs());
-                            f
-                        } else {
-                            0.0
-                        }
-                    }
-                };
+                });
+                self.float_peak = peak;
+                c
+            }
+        };
+        Ok(n)
+    }
+}
+
+/// Decodes every `W`-byte sample of `raw` (frames of `n_ch` samples) with
+/// `f` (value, whether clipped), appends channel `channel`'s to `out`, and
+/// returns how many were clipped over all channels.
+fn decode<const W: usize>(
+    raw: &[u8],
+    n_ch: usize,
+    channel: usize,
+    out: &mut Vec<f32>,
+    mut f: impl FnMut([u8; W]) -> (f32, bool),
+) -> usize {
+    let mut clipped = 0usize;
+    let mut sample = |s: &[u8]| {
+        let mut b = [0u8; W];
+        b.copy_from_slice(s);
+        let (v, c) = f(b);
+        clipped += usize::from(c);
+        v
+    };
+    if n_ch == 1 {
+        out.extend(raw.chunks_exact(W).map(&mut sample));
+    } else {
+        for frame in raw.chunks_exact(W * n_ch) {
+            for (c, s) in frame.chunks_exact(W).enumerate() {
+                let v = sample(s);
                 if c == channel {
                     out.push(v);
                 }
             }
         }
-        Ok(n)
     }
+    clipped
 }

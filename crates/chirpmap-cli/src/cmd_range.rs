@@ -400,8 +400,14 @@ fn run_echoes(args: &RangeArgs) -> Result<()> {
         let max_dd = chirp.max_delta_d_m.unwrap_or(60.0).min(a * x.len() as f64 / fs);
         chirpmap::rir_echoes(&x, fs, a, max_dd, &geom, &opts).map_err(field_err(&args.wav))?
     } else {
-        let streamed = chirpmap::RoomReport::from_wav_stream(&args.wav, args.chirp.channel, &chirp, &geom, &opts)
-            .map_err(field_err(&args.wav))?;
+        // CHIRPMAP_RANGE_IN_MEMORY=1: the recording read whole, as before issue 14 (the
+        // benchmark's baseline, scripts/bench/range-memory.sh; same outputs).
+        let streamed = if std::env::var_os("CHIRPMAP_RANGE_IN_MEMORY").is_some() {
+            None
+        } else {
+            chirpmap::RoomReport::from_wav_stream(&args.wav, args.chirp.channel, &chirp, &geom, &opts)
+                .map_err(field_err(&args.wav))?
+        };
         match streamed {
             Some(s) => {
                 clipped = s.clipped_samples;
@@ -415,11 +421,13 @@ fn run_echoes(args: &RangeArgs) -> Result<()> {
                 s.report
             }
             None => {
-                eprintln!(
-                    "note: {}: the level changes too much along the recording for streamed detection; reading it \
-                     into memory",
-                    args.wav.display()
-                );
+                if std::env::var_os("CHIRPMAP_RANGE_IN_MEMORY").is_none() {
+                    eprintln!(
+                        "note: {}: the level changes too much along the recording for streamed detection; \
+                         reading it into memory",
+                        args.wav.display()
+                    );
+                }
                 let (xr, _, c) = read_channel(&args.wav, args.chirp.channel)?;
                 clipped = c;
                 let prep = chirpmap::prepare_room(xr, fs, &chirp).map_err(field_err(&args.wav))?;
