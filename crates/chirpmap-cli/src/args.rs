@@ -66,7 +66,7 @@ pub struct ChirpArgs {
     /// Largest path difference searched (m). Default: min(60, a·T/2).
     #[arg(long)]
     pub max_delta_d: Option<f64>,
-    /// Sweep shape: linear (the paper's) or exponential [default: linear, or the --scene's].
+    /// Sweep shape: linear (the paper's), exponential or hyperbolic [default: linear, or the --scene's].
     #[arg(long, value_parser = parse_sweep)]
     pub sweep: Option<chirpmap::core::scene::SweepKind>,
 }
@@ -88,7 +88,7 @@ impl ChirpArgs {
 /// Parses a sweep shape as a scene's `[chirp] kind` spells it.
 pub fn parse_sweep(s: &str) -> Result<chirpmap::core::scene::SweepKind, String> {
     serde_json::from_value(serde_json::Value::String(s.to_owned()))
-        .map_err(|_| format!("{:?} is not a sweep shape (linear or exponential)", excerpt(s)))
+        .map_err(|_| format!("{:?} is not a sweep shape (linear, exponential or hyperbolic)", excerpt(s)))
 }
 
 /// Parses `paper` or `evidence`.

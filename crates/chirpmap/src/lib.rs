@@ -52,7 +52,8 @@ pub use chirpmap_audio as audio;
 pub use chirpmap_core as core;
 pub use chirpmap_sim as sim;
 
-pub use chirpmap_audio::synth::Synthesized;
+pub use chirpmap_audio::doppler::{MovingOptions, WavMethod};
+pub use chirpmap_audio::synth::{ChirpPattern, Synthesized};
 pub use chirpmap_audio::{Method, SynthConfig};
 pub use chirpmap_core::metrics::{SurfaceMetrics, WallMatch};
 pub use chirpmap_core::{
