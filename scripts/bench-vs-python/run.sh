@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # chirpmap against Python peers, side by side (issue 14): builds the release CLI, makes a
-# venv with numpy and scipy (requirements.txt), runs bench.py. Not part of CI.
-# Usage: scripts/bench-vs-python/run.sh [--reps N] [--echoes N] [--band-echoes N]
+# venv with numpy, scipy and pyroomacoustics (requirements.txt), runs bench.py. Not part of CI.
+# Usage: scripts/bench-vs-python/run.sh [--reps N] [--rows map,range,synth] [--echoes N] [--band-echoes N] [--chirps N]
 # Environment: VENV (default target/bench-vs-python-venv), PYTHON (default python3).
 set -euo pipefail
 cd "$(dirname "$0")/../.."
