@@ -548,6 +548,64 @@ pub fn for_windows(
     Ok(())
 }
 
+/// Finishes the detection of a [`Scan`] and visits every chirp's window
+/// in a second read of the stream (a third only when a chirp's normalised
+/// correlation changes which chirps are accepted). `open` reopens the
+/// stream from its start; each chirp's window is `before` samples before
+/// its onset to `after` samples after it (clipped to the stream).
+/// `start(onsets)` makes the per-read state, `visit(state, k, window,
+/// onset within window)` is called for chirp `k` in order of onset. The
+/// detections are `detect_chirps`' and the state is from a read whose
+/// onsets are theirs.
+pub fn visit_chirps<S: BlockSource, T>(
+    scan: &Scan,
+    mut open: impl FnMut() -> Result<S, AudioError>,
+    before: usize,
+    after: usize,
+    mut start: impl FnMut(&[usize]) -> T,
+    mut visit: impl FnMut(&mut T, usize, &[f32], usize),
+) -> Result<(Vec<Detection>, T), AudioError> {
+    let m = scan.m;
+    let mut known: HashMap<usize, f64> = HashMap::new();
+    let mut picked: Option<(Vec<usize>, T)> = None;
+    loop {
+        let (onsets, need, done) = match scan.select(&known) {
+            Selection::Done(Err(e)) => return Err(e),
+            Selection::Done(Ok(d)) => {
+                let onsets: Vec<usize> = d.iter().map(|d| d.onset_sample).collect();
+                if let Some((p, state)) = picked.take()
+                    && p == onsets
+                {
+                    return Ok((d, state));
+                }
+                (onsets, Vec::new(), Some(d))
+            }
+            Selection::Tentative { onsets, need } => (onsets, need, None),
+        };
+        // (start, end, what): what < need.len() → a correlation, else chirp what − need.len().
+        let mut windows: Vec<(usize, usize, usize)> =
+            need.iter().enumerate().map(|(i, &(lag, _))| (lag, lag + m, i)).collect();
+        windows.extend(onsets.iter().enumerate().map(|(k, &o)| (o.saturating_sub(before), o + after, need.len() + k)));
+        windows.sort_by_key(|w| w.0);
+        let ranges: Vec<(usize, usize)> = windows.iter().map(|w| (w.0, w.1)).collect();
+        let mut state = start(&onsets);
+        let mut src = open()?;
+        for_windows(&mut src, scan.len, &ranges, |i, x| {
+            let (w0, _, what) = windows[i];
+            if what < need.len() {
+                known.insert(need[what].0, scan.ncc(x, need[what].1));
+            } else {
+                let k = what - need.len();
+                visit(&mut state, k, x, onsets[k] - w0);
+            }
+        })?;
+        if let Some(d) = done {
+            return Ok((d, state));
+        }
+        picked = Some((onsets, state));
+    }
+}
+
 #[cfg(test)]
 #[allow(clippy::unwrap_used)]
 mod tests {

@@ -141,9 +141,40 @@ pub fn run(args: &RangeArgs) -> Result<()> {
         None => ChirpSpec::default(),
     };
     let chirp = args.chirp.spec(base);
-    let (prep, clipped) = prepare_wav(&args.wav, args.chirp.channel, &chirp)?;
     let methods: Vec<Method> = if args.compare { Method::ALL.to_vec() } else { vec![method] };
-    let report = chirpmap::range(&prep, &methods, &geom).with_context(|| format!("{}", args.wav.display()))?;
+    // The recording is read as a stream (issue 14, item 4); CHIRPMAP_RANGE_IN_MEMORY=1 reads it
+    // whole, as before (same outputs; the benchmark's baseline).
+    let streamed = if std::env::var_os("CHIRPMAP_RANGE_IN_MEMORY").is_some() {
+        None
+    } else {
+        chirpmap::RangeReport::from_wav_stream(&args.wav, args.chirp.channel, &chirp, &methods, &geom)
+            .map_err(field_err(&args.wav))?
+    };
+    // `window_start`: where `prep.x` (the middle chirp's window when streamed) starts in the recording.
+    let (prep, clipped, report, window_start) = match streamed {
+        Some(s) => {
+            if s.clipped_samples > 0 {
+                eprintln!(
+                    "warning: {}: {} sample(s) at full scale (clipping); estimates may be degraded",
+                    args.wav.display(),
+                    s.clipped_samples
+                );
+            }
+            (s.prep, s.clipped_samples, s.report, s.window_start)
+        }
+        None => {
+            if std::env::var_os("CHIRPMAP_RANGE_IN_MEMORY").is_none() {
+                eprintln!(
+                    "note: {}: the level changes too much along the recording for streamed detection; reading it \
+                     into memory",
+                    args.wav.display()
+                );
+            }
+            let (prep, clipped) = prepare_wav(&args.wav, args.chirp.channel, &chirp)?;
+            let report = chirpmap::range(&prep, &methods, &geom).with_context(|| format!("{}", args.wav.display()))?;
+            (prep, clipped, report, 0)
+        }
+    };
     let results = &report.chirps;
 
     let mut csv = String::from(if args.compare { "method," } else { "" });
@@ -201,7 +232,7 @@ pub fn run(args: &RangeArgs) -> Result<()> {
     // Figures of one chirp (the middle one), as the paper's Fig. 8.
     let mid = results.len() / 2;
     let (det, est) = (&results[mid].0, results[mid].1[primary]);
-    plot_chirp(&mut out, &prep, det.onset_sample, est, mid, results.len(), fmt)?;
+    plot_chirp(&mut out, &prep, (window_start, det.onset_sample - window_start), est, mid, results.len(), fmt)?;
     summary["elapsed_s"] = json!(started.elapsed().as_secs_f64());
     out.write("summary.json", serde_json::to_string_pretty(&summary)? + "\n")?;
     // A previous `--compare` run's compare.csv is dropped by the output manifest.
@@ -224,10 +255,11 @@ pub fn run(args: &RangeArgs) -> Result<()> {
     Ok(())
 }
 
+/// `prep.x` starts at sample `window_start` of the recording; `onset` is the chirp's within `prep.x`.
 fn plot_chirp(
     out: &mut Staged,
     prep: &Prepared,
-    onset: usize,
+    (window_start, onset): (usize, usize),
     est: Option<Estimate>,
     index: usize,
     count: usize,
@@ -248,7 +280,7 @@ fn plot_chirp(
         &out.path(fmt.spectrogram())?,
         &format!("chirp {} of {count}: spectrogram", index + 1),
         &frames,
-        s0 as f64 / fs,
+        (window_start + s0) as f64 / fs,
         hop as f64 / fs,
         fs / nfft as f64,
         f_max.min(fs / 2.0),

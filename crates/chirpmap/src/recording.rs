@@ -99,6 +99,21 @@ fn prepare_inner(mut x: Vec<f32>, sample_rate_hz: f64, chirp: &ChirpSpec, any_sw
     if x.iter().all(|v| *v == 0.0) {
         return Err(Error::Invalid("the channel is silent (every sample is zero)".into()));
     }
+    let (tpl, lim) = template_and_limits(x.len(), sample_rate_hz, chirp, any_sweep)?;
+    paper_highpass(sample_rate_hz)?.filter_in_place(&mut x);
+    let duration_s = x.len() as f64 / sample_rate_hz;
+    Ok(Prepared { x, tpl, lim, sample_rate_hz, duration_s })
+}
+
+/// The chirp's template and search limits for a channel of `len` samples,
+/// validated against it.
+fn template_and_limits(
+    len: usize,
+    sample_rate_hz: f64,
+    chirp: &ChirpSpec,
+    any_sweep: bool,
+) -> Result<(ChirpTemplate, RangeLimits)> {
+    let a = chirp.speed_of_sound_mps;
     if chirp.kind != SweepKind::Linear && !any_sweep {
         return Err(Error::Field {
             field: "sweep",
@@ -107,17 +122,16 @@ fn prepare_inner(mut x: Vec<f32>, sample_rate_hz: f64, chirp: &ChirpSpec, any_sw
     }
     let sweep = LinearChirp::new(chirp.f_start_hz, chirp.f_end_hz, chirp.duration_s)?;
     let tpl = ChirpTemplate::new(sweep, sample_rate_hz)?;
-    if tpl.len() > x.len() {
+    if tpl.len() > len {
         return Err(Error::Field {
             field: "duration",
             reason: format!(
                 "the chirp ({} s) is longer than the recording ({:.3} s)",
                 chirp.duration_s,
-                x.len() as f64 / sample_rate_hz
+                len as f64 / sample_rate_hz
             ),
         });
     }
-    paper_highpass(sample_rate_hz)?.filter_in_place(&mut x);
     let mut lim = RangeLimits::for_chirp(chirp.duration_s, a);
     if let Some(m) = chirp.max_delta_d_m {
         if !(m.is_finite() && m > lim.min_delta_d_m) {
@@ -137,8 +151,7 @@ fn prepare_inner(mut x: Vec<f32>, sample_rate_hz: f64, chirp: &ChirpSpec, any_sw
         }
         lim.max_delta_d_m = m;
     }
-    let duration_s = x.len() as f64 / sample_rate_hz;
-    Ok(Prepared { x, tpl, lim, sample_rate_hz, duration_s })
+    Ok((tpl, lim))
 }
 
 /// Where the speaker and the microphone stand, and optionally the wall.
@@ -219,7 +232,114 @@ pub fn range(prep: &Prepared, methods: &[Method], geom: &RangeGeometry) -> Resul
         return Err(Error::Invalid("no ranging method given".into()));
     }
     let chirps = range_signal(&prep.x, &prep.tpl, methods, &prep.lim)?;
-    let fs = prep.sample_rate_hz;
+    Ok(report_of(chirps, methods, geom, prep.sample_rate_hz, &prep.tpl, &prep.lim))
+}
+
+/// A [`RangeReport`] of a WAV file read as a stream, with the samples the
+/// figures of the middle chirp need.
+#[derive(Debug, Clone)]
+pub struct StreamedRange {
+    /// The report, the same as [`prepare`] then [`range`] give.
+    pub report: RangeReport,
+    /// The recording's parameters; `x` holds only the middle chirp's
+    /// window (from 50 ms before its onset to 150 ms after its end).
+    pub prep: Prepared,
+    /// Index in the recording of `prep.x[0]`.
+    pub window_start: usize,
+    /// Samples at full scale over all channels.
+    pub clipped_samples: usize,
+}
+
+impl RangeReport {
+    /// [`prepare`] then [`range`] on channel `channel` of a WAV file, in
+    /// memory independent of the recording's length (issue 14, item 4):
+    /// the file is read as a stream for the detection
+    /// ([`chirpmap_audio::stream`]), then again for each chirp's window.
+    /// The same report, bit for bit. `Ok(None)`: the recording's level
+    /// changes too much along it for the streamed median; use [`prepare`].
+    pub fn from_wav_stream(
+        path: &std::path::Path,
+        channel: usize,
+        chirp: &ChirpSpec,
+        methods: &[Method],
+        geom: &RangeGeometry,
+    ) -> Result<Option<StreamedRange>> {
+        use chirpmap_audio::stream::{Filtered, ScanError, scan_chirps, visit_chirps};
+        use chirpmap_audio::wav::WavStream;
+        let open = || WavStream::open(path, channel);
+        let wav = open()?;
+        let fs = f64::from(wav.sample_rate_hz);
+        let (n, n_channels) = (wav.frames, wav.n_channels);
+        let (lo, hi) = SPEED_OF_SOUND_RANGE_MPS;
+        let a = chirp.speed_of_sound_mps;
+        if !(a.is_finite() && (lo..=hi).contains(&a)) {
+            return Err(Error::Field {
+                field: "speed_of_sound",
+                reason: format!("must be between {lo} and {hi} m/s (air: about 343), got {a}"),
+            });
+        }
+        let (tpl, lim) = template_and_limits(n, fs, chirp, false)?;
+        geom.validate()?;
+        if methods.is_empty() {
+            return Err(Error::Invalid("no ranging method given".into()));
+        }
+        let sos = paper_highpass(fs)?;
+        let mut src = Filtered::new(wav, &sos);
+        let scanned = scan_chirps(&mut src, n, &tpl, lim.max_delta_d_m / lim.speed_of_sound_mps);
+        if !src.any_nonzero_input && !matches!(scanned, Err(ScanError::Audio(chirpmap_audio::AudioError::Truncated(_))))
+        {
+            let hint =
+                if n_channels > 1 { format!(" (it has {n_channels} channels: try --channel)") } else { String::new() };
+            return Err(Error::Invalid(format!("channel {channel} is silent (every sample is zero){hint}")));
+        }
+        let clipped = src.inner().clipped_samples();
+        let checkpoints = std::mem::take(&mut src.checkpoints);
+        let scan = match scanned {
+            Ok(s) => s,
+            Err(ScanError::MedianLost) => return Ok(None),
+            Err(ScanError::Audio(e)) => return Err(e.into()),
+        };
+        let m = tpl.len();
+        // What the methods read (matched: 64 samples before the onset to the
+        // largest delay after the chirp) and the figures (50 ms before, 150 ms after).
+        let dmax = (lim.max_delta_d_m / lim.speed_of_sound_mps * fs).ceil() as usize;
+        let (plot_before, plot_after) = ((0.05 * fs) as usize, m + (0.15 * fs) as usize);
+        let before = plot_before.max(64);
+        let after = (m + dmax + 64).max(plot_after);
+        let mut ranger = chirpmap_audio::Ranger::new();
+        type State = (Vec<Vec<Option<chirpmap_audio::Estimate>>>, usize, Vec<f32>, usize);
+        let (dets, (estimates, _, window, window_start)) = visit_chirps(
+            &scan,
+            || Ok(Filtered::resume(open()?, &sos, checkpoints.clone())),
+            before,
+            after,
+            |onsets: &[usize]| -> State { (Vec::with_capacity(onsets.len()), onsets.len() / 2, Vec::new(), 0) },
+            |st: &mut State, k, x, r| {
+                st.0.push(methods.iter().map(|&meth| ranger.estimate(meth, x, r, &tpl, &lim)).collect());
+                if k == st.1 {
+                    let s0 = r.saturating_sub(plot_before);
+                    st.2 = x[s0..(r + plot_after).min(x.len())].to_vec();
+                    st.3 = r - s0;
+                }
+            },
+        )?;
+        let onset_mid = dets.get(dets.len() / 2).map_or(0, |d| d.onset_sample);
+        let window_start = onset_mid - window_start;
+        let chirps: Vec<RangedChirp> = dets.into_iter().zip(estimates).collect();
+        let report = report_of(chirps, methods, geom, fs, &tpl, &lim);
+        let prep = Prepared { x: window, tpl, lim, sample_rate_hz: fs, duration_s: n as f64 / fs };
+        Ok(Some(StreamedRange { report, prep, window_start, clipped_samples: clipped }))
+    }
+}
+
+fn report_of(
+    chirps: Vec<RangedChirp>,
+    methods: &[Method],
+    geom: &RangeGeometry,
+    fs: f64,
+    tpl: &ChirpTemplate,
+    lim: &RangeLimits,
+) -> RangeReport {
     let per_method: Vec<Vec<ChirpResult>> = (0..methods.len())
         .map(|k| {
             chirps
@@ -230,13 +350,13 @@ pub fn range(prep: &Prepared, methods: &[Method], geom: &RangeGeometry) -> Resul
         })
         .collect();
     let summaries = per_method.iter().zip(methods).map(|(rows, &m)| summarise(m, rows, geom)).collect();
-    Ok(RangeReport {
+    RangeReport {
         methods: methods.to_vec(),
         per_method,
         summaries,
         chirps,
-        gap_resolution_floor_m: gap_floor_m(&prep.tpl, prep.lim.speed_of_sound_mps),
-    })
+        gap_resolution_floor_m: gap_floor_m(tpl, lim.speed_of_sound_mps),
+    }
 }
 
 /// What `range` reports about a recording (the keys of its summary.json).
