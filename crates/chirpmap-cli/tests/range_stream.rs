@@ -121,6 +121,39 @@ fn streamed_errors_name_the_problem() {
     assert!(e.contains("longer than the recording"), "{e}");
 }
 
+/// Plain `range` (first reflection, every method): the streamed report's
+/// detections and estimates are the in-memory ones, and its window holds
+/// the middle chirp's samples.
+#[test]
+fn streamed_range_is_the_in_memory_one() {
+    let d = tmp("range");
+    let (wav, scene) = synth(&d, 15, 0.3, 15.0);
+    let chirp = chirp_of(&scene);
+    let geom = chirpmap::RangeGeometry {
+        speaker: Point::new(0.0, 0.0),
+        mic: Point::new(1.5, 0.5),
+        wall_normal: Some(Point::new(0.0, -1.0)),
+    };
+    let methods = chirpmap::Method::ALL.to_vec();
+    let rec = read_wav(&wav).unwrap();
+    let prep = chirpmap::prepare(rec.channel(0).unwrap().to_vec(), f64::from(rec.sample_rate_hz), &chirp).unwrap();
+    let mem = chirpmap::range(&prep, &methods, &geom).unwrap();
+    let s = chirpmap::RangeReport::from_wav_stream(&wav, 0, &chirp, &methods, &geom).unwrap().unwrap();
+    assert_eq!(mem.chirps, s.report.chirps);
+    assert_eq!(mem.per_method, s.report.per_method);
+    assert_eq!(mem.summaries, s.report.summaries);
+    assert_eq!(mem.chirps.len(), 15);
+    let mid = mem.chirps[mem.chirps.len() / 2].0.onset_sample;
+    let w = &prep.x[s.window_start..s.window_start + s.prep.x.len()];
+    assert!(w.iter().zip(&s.prep.x).all(|(a, b)| a.to_bits() == b.to_bits()));
+    assert!(s.window_start < mid && mid < s.window_start + s.prep.x.len());
+    assert_eq!(s.report.summary(&s.prep, &chirp, &geom, 0), mem.summary(&prep, &chirp, &geom, 0));
+    // Δd of the wall (image-source geometry, as above) by the matched filter.
+    let truth = 1.5f64.hypot(12.5) - 1.5f64.hypot(0.5);
+    let med = s.report.summaries[1].delta_d_median.unwrap();
+    assert!((med - truth).abs() < 0.05, "{med} vs {truth}");
+}
+
 /// `CHIRPMAP_STREAM_WAV=hour.wav CHIRPMAP_STREAM_SCENE=scene.toml cargo test --release -p chirpmap-cli
 /// --test range_stream -- --ignored`: the same check on a given recording (the hour benchmark).
 #[test]
