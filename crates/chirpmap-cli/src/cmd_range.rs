@@ -147,6 +147,9 @@ pub fn run(args: &RangeArgs) -> Result<()> {
     let streamed = if std::env::var_os("CHIRPMAP_RANGE_IN_MEMORY").is_some() {
         None
     } else {
+        // The header's errors (a missing file, a bad format) with their causes, as `read_wav` gave them.
+        chirpmap::audio::wav::WavStream::open(&args.wav, args.chirp.channel)
+            .with_context(|| format!("{}", args.wav.display()))?;
         chirpmap::RangeReport::from_wav_stream(&args.wav, args.chirp.channel, &chirp, &methods, &geom)
             .map_err(field_err(&args.wav))?
     };
