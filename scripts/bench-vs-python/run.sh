@@ -8,7 +8,8 @@ cd "$(dirname "$0")/../.."
 venv=${VENV:-target/bench-vs-python-venv}
 if [ ! -x "$venv/bin/python" ]; then
   "${PYTHON:-python3}" -m venv "$venv"
-  "$venv/bin/pip" install --quiet -r scripts/bench-vs-python/requirements.txt
 fi
+# Every run: an older venv gets what requirements.txt added since (no-op when satisfied).
+"$venv/bin/pip" install --quiet -r scripts/bench-vs-python/requirements.txt
 cargo build --release -p chirpmap-cli
 "$venv/bin/python" scripts/bench-vs-python/bench.py --chirpmap target/release/chirpmap "$@"
