@@ -18,6 +18,7 @@ import json
 import math
 import argparse
 import os
+import shutil
 import statistics
 import subprocess
 import sys
@@ -54,6 +55,11 @@ def main():
     if not rows <= {"map", "range", "synth"}:
         sys.exit(f"--rows: unknown row(s) {sorted(rows - {'map', 'range', 'synth'})}")
     with tempfile.TemporaryDirectory() as tmp:
+        # A private copy: other builds of the same tree may replace target/release/chirpmap
+        # while the bench runs, and every row must time one binary.
+        pinned = os.path.join(tmp, "chirpmap")
+        shutil.copy2(args.chirpmap, pinned)
+        args.chirpmap = pinned
         if "map" in rows:
             bench_map(args, tmp)
         if rows & {"range", "synth"}:
