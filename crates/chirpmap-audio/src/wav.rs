@@ -532,7 +532,11 @@ fn decode<const W: usize>(
         v
     };
     if n_ch == 1 {
-        out.extend(raw.chunks_exact(W).map(&mut sample));
+        let start = out.len();
+        out.resize(start + raw.len() / W, 0.0);
+        for (o, s) in out[start..].iter_mut().zip(raw.chunks_exact(W)) {
+            *o = sample(s);
+        }
     } else {
         for frame in raw.chunks_exact(W * n_ch) {
             for (c, s) in frame.chunks_exact(W).enumerate() {
