@@ -49,10 +49,11 @@ with open(dst, "wb") as out:
                 left -= len(block)
 PY
 T='%e s wall, %U s user, %S s sys, %M KB peak RSS'
+MODE=--echoes
 run() { # label, out dir, wav, extra env
     local label=$1 out=$2 wav=$3; shift 3
-    env "$@" /usr/bin/time -f "$label: $T" "$BIN" range "$wav" --scene scene-static.toml \
-        --speaker 0,0 --mic 1.5,0.5 --echoes --out "$out" 2>&1 | tail -2
+    env "$@" /usr/bin/time -f "range $MODE, $label: $T" "$BIN" range "$wav" --scene scene-static.toml \
+        --speaker 0,0 --mic 1.5,0.5 $MODE --out "$out" 2>&1 | tail -1
 }
 run "hour, streamed" out-hour hour-static.wav
 run "hour, whole file (CHIRPMAP_RANGE_IN_MEMORY=1)" out-hour-mem hour-static.wav CHIRPMAP_RANGE_IN_MEMORY=1
@@ -70,3 +71,11 @@ same = sum(x == y for x, y in zip(a, b[:n]))
 d = max(abs(float(x["path_delta_m"]) - float(y["path_delta_m"])) for x, y in zip(a, b[:n]))
 print(f"{len(b)} echoes in the long recording ({len(b) / n:.2f}x the hour's {n}); first hour: {same} of {n} rows identical, largest path_delta_m difference {d:.6f} m")
 PY
+# Plain `range` (first reflection; --compare: all three methods).
+MODE=--compare
+run "hour, streamed" out-plain-hour hour-static.wav
+run "hour, whole file (CHIRPMAP_RANGE_IN_MEMORY=1)" out-plain-hour-mem hour-static.wav CHIRPMAP_RANGE_IN_MEMORY=1
+for f in chirps.csv compare.csv spectrogram.png spectrum.png; do
+    cmp out-plain-hour/$f out-plain-hour-mem/$f && echo "$f: streamed and whole-file outputs identical"
+done
+run "$HOURS hours, streamed" "out-plain-$HOURS" "hours-$HOURS.wav"
