@@ -2,7 +2,9 @@
 //! bar, and the amplitude spectrum of one frame with the direct and reflected
 //! peaks. SVG when the path ends in `.svg`, PNG otherwise.
 
-use crate::plot::{ColourMap, colour_bar, ensure_font, plot_err, tick_label, with_backend};
+use crate::plot::{
+    ColourMap, colour_bar, ensure_font, legend_and_present, line_chart, plot_err, tick_label, with_backend,
+};
 use anyhow::Result;
 use plotters::coord::Shift;
 use plotters::prelude::*;
@@ -138,27 +140,7 @@ where
     let f1 = freqs_hz.last().copied().unwrap_or(1.0);
     let (f0, f1) = if f1 > f0 { (f0, f1) } else { (f0, f0 + 1.0) };
     let top = amplitude.iter().filter(|v| v.is_finite()).fold(0.0f64, |m, v| m.max(*v)).max(1e-30) * 1.1;
-    let mut chart = ChartBuilder::on(&root)
-        .caption(title, ("sans-serif", 20))
-        .margin(12)
-        .margin_right(40)
-        .x_label_area_size(44)
-        .y_label_area_size(80)
-        .build_cartesian_2d(f0..f1, 0.0..top)
-        .map_err(plot_err)?;
-    let fmt = |v: &f64| tick_label(*v);
-    chart
-        .configure_mesh()
-        .light_line_style(RGBColor(235, 235, 235))
-        .bold_line_style(RGBColor(215, 215, 215))
-        .x_desc("frequency (Hz)")
-        .y_desc("amplitude (smoothed)")
-        .x_label_formatter(&fmt)
-        .y_label_formatter(&fmt)
-        .axis_desc_style(("sans-serif", 16))
-        .label_style(("sans-serif", 14))
-        .draw()
-        .map_err(plot_err)?;
+    let mut chart = line_chart(&root, title, (f0..f1, 0.0..top), 80, ("frequency (Hz)", "amplitude (smoothed)"))?;
     chart
         .draw_series(LineSeries::new(freqs_hz.iter().copied().zip(amplitude.iter().copied()), BLACK.stroke_width(2)))
         .map_err(plot_err)?
@@ -178,16 +160,7 @@ where
                 .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], colour.stroke_width(2)));
         }
     }
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.9))
-        .border_style(BLACK)
-        .label_font(("sans-serif", 14))
-        .position(SeriesLabelPosition::UpperRight)
-        .draw()
-        .map_err(plot_err)?;
-    root.present().map_err(plot_err)?;
-    Ok(())
+    legend_and_present(&mut chart, &root)
 }
 
 /// Echogram (issue 10, item 5): the impulse response's envelope in dB
@@ -222,27 +195,13 @@ where
     let x0 = finite().map(|p| p.0).fold(f64::INFINITY, f64::min);
     let x1 = finite().map(|p| p.0).fold(f64::NEG_INFINITY, f64::max);
     let (x0, x1) = if x0.is_finite() && x1 > x0 { (x0, x1) } else { (0.0, 1.0) };
-    let mut chart = ChartBuilder::on(&root)
-        .caption(title, ("sans-serif", 20))
-        .margin(12)
-        .margin_right(40)
-        .x_label_area_size(44)
-        .y_label_area_size(70)
-        .build_cartesian_2d(x0..x1, ECHOGRAM_FLOOR_DB..5.0)
-        .map_err(plot_err)?;
-    let fmt = |v: &f64| tick_label(*v);
-    chart
-        .configure_mesh()
-        .light_line_style(RGBColor(235, 235, 235))
-        .bold_line_style(RGBColor(215, 215, 215))
-        .x_desc("path difference to the direct sound (m)")
-        .y_desc("envelope (dB re direct)")
-        .x_label_formatter(&fmt)
-        .y_label_formatter(&fmt)
-        .axis_desc_style(("sans-serif", 16))
-        .label_style(("sans-serif", 14))
-        .draw()
-        .map_err(plot_err)?;
+    let mut chart = line_chart(
+        &root,
+        title,
+        (x0..x1, ECHOGRAM_FLOOR_DB..5.0),
+        70,
+        ("path difference to the direct sound (m)", "envelope (dB re direct)"),
+    )?;
     chart
         .draw_series(LineSeries::new(finite().map(|&(d, l)| (d, l.max(ECHOGRAM_FLOOR_DB))), BLACK.stroke_width(1)))
         .map_err(plot_err)?
@@ -282,16 +241,7 @@ where
             Text::new(format!("{label} (predicted)"), (*d, ECHOGRAM_FLOOR_DB + 4.0), ("sans-serif", 13).into_font());
         chart.draw_series(std::iter::once(text)).map_err(plot_err)?;
     }
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.9))
-        .border_style(BLACK)
-        .label_font(("sans-serif", 14))
-        .position(SeriesLabelPosition::UpperRight)
-        .draw()
-        .map_err(plot_err)?;
-    root.present().map_err(plot_err)?;
-    Ok(())
+    legend_and_present(&mut chart, &root)
 }
 
 #[cfg(test)]
