@@ -458,7 +458,7 @@ impl RoomReport {
         geom: &RoomGeometry,
         opts: &EchoOptions,
     ) -> Result<Option<StreamedRoom>> {
-        use chirpmap_audio::stream::{Filtered, ScanError, Selection, for_windows, scan_chirps};
+        use chirpmap_audio::stream::{Filtered, ScanError, scan_chirps, visit_chirps};
         use chirpmap_audio::wav::WavStream;
         let open = || WavStream::open(path, channel);
         let wav = open()?;
@@ -505,59 +505,24 @@ impl RoomReport {
         let head = 4 * pre + 64;
         let tail = max_lag.ceil() as usize + atom_len + head;
         let mut ex = IrExtractor::new(&kernel, head, tail);
-        let mut known: std::collections::HashMap<usize, f64> = std::collections::HashMap::new();
-        let mut picked: Option<(Vec<usize>, RoomReport)> = None;
-        loop {
-            let (onsets, need) = match scan.select(&known) {
-                Selection::Done(Err(e)) => return Err(e.into()),
-                Selection::Done(Ok(d)) => {
-                    let onsets: Vec<usize> = d.iter().map(|d| d.onset_sample).collect();
-                    if let Some((p, report)) = picked.take()
-                        && p == onsets
-                    {
-                        return Ok(Some(StreamedRoom {
-                            report,
-                            sample_rate_hz: fs,
-                            clipped_samples: clipped,
-                            max_delta_d_m: max_dd,
-                        }));
-                    }
-                    (onsets, Vec::new())
-                }
-                Selection::Tentative { onsets, need } => (onsets, need),
-            };
-            // Windows: (start, end, what): what < need.len() → a correlation, else a chirp.
-            let mut windows: Vec<(usize, usize, usize)> =
-                need.iter().enumerate().map(|(i, &(lag, _))| (lag, lag + m, i)).collect();
-            windows.extend(
-                onsets.iter().enumerate().map(|(k, &o)| (o.saturating_sub(head), o + m + tail, need.len() + k)),
-            );
-            windows.sort_by_key(|w| w.0);
-            let ranges: Vec<(usize, usize)> = windows.iter().map(|w| (w.0, w.1)).collect();
-            let mut picker = Picker::new(geom, opts, fs, a, max_dd);
-            picker.gram_every = onsets.len().div_ceil(ECHOGRAM_CHIRPS).max(1);
-            let mut src = Filtered::resume(open()?, &sos, checkpoints.clone());
-            for_windows(&mut src, n, &ranges, |i, x| {
-                let (start, _, what) = windows[i];
-                if what < need.len() {
-                    known.insert(need[what].0, scan.ncc(x, need[what].1));
-                } else {
-                    let k = what - need.len();
-                    let ir = ex.extract(x, onsets[k] - start);
-                    picker.add(k, onsets[k] as f64 / fs, &ir, direct_search(head, pre));
-                }
-            })?;
-            let report = picker.finish(onsets.iter().map(|&o| o as f64 / fs).collect());
-            if need.is_empty() {
-                return Ok(Some(StreamedRoom {
-                    report,
-                    sample_rate_hz: fs,
-                    clipped_samples: clipped,
-                    max_delta_d_m: max_dd,
-                }));
-            }
-            picked = Some((onsets, report));
-        }
+        let (dets, picker) = visit_chirps(
+            &scan,
+            || Ok(Filtered::resume(open()?, &sos, checkpoints.clone())),
+            head,
+            m + tail,
+            |onsets: &[usize]| {
+                let mut p = Picker::new(geom, opts, fs, a, max_dd);
+                p.gram_every = onsets.len().div_ceil(ECHOGRAM_CHIRPS).max(1);
+                (p, onsets.to_vec())
+            },
+            |(picker, onsets), k, x, r| {
+                // The window starts `head` samples before the onset (or at 0): the extractor's own.
+                let ir = ex.extract(x, r);
+                picker.add(k, onsets[k] as f64 / fs, &ir, direct_search(head, pre));
+            },
+        )?;
+        let report = picker.0.finish(dets.iter().map(|d| d.onset_sample as f64 / fs).collect());
+        Ok(Some(StreamedRoom { report, sample_rate_hz: fs, clipped_samples: clipped, max_delta_d_m: max_dd }))
     }
 }
 
