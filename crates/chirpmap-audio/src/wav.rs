@@ -97,6 +97,30 @@ fn sample_format(tag: u16, bits: u16) -> Result<SampleFormat, AudioError> {
     }
 }
 
+/// The fmt chunk's format, channel count and sample rate checked against
+/// what we read (both the whole-file reader and [`WavStream`]).
+fn check_fmt(tag: u16, n_ch: u16, rate: u32, bits: u16) -> Result<(SampleFormat, usize), AudioError> {
+    let format = sample_format(tag, bits)?;
+    let n_ch = usize::from(n_ch);
+    if n_ch == 0 {
+        return Err(AudioError::NotWav("zero channels".into()));
+    }
+    if rate == 0 {
+        return Err(AudioError::NotWav("sample rate 0".into()));
+    }
+    if rate > MAX_SAMPLE_RATE_HZ {
+        return Err(AudioError::Unsupported(format!(
+            "sample rate {rate} Hz in the header; at most {MAX_SAMPLE_RATE_HZ} Hz is accepted"
+        )));
+    }
+    if n_ch > usize::from(MAX_CHANNELS) {
+        return Err(AudioError::Unsupported(format!(
+            "{n_ch} channels in the header; at most {MAX_CHANNELS} are accepted"
+        )));
+    }
+    Ok((format, n_ch))
+}
+
 /// Decodes a WAV file held in memory. Never panics on any input (fuzzed in
 /// `tests/wav.rs`).
 pub fn read_wav_bytes(bytes: &[u8]) -> Result<Recording, AudioError> {
@@ -160,24 +184,7 @@ pub fn read_wav_bytes(bytes: &[u8]) -> Result<Recording, AudioError> {
         pos = body.saturating_add(len).saturating_add(len & 1);
     };
     let ((tag, n_ch, rate, bits), data) = data;
-    let format = sample_format(tag, bits)?;
-    let n_ch = usize::from(n_ch);
-    if n_ch == 0 {
-        return Err(AudioError::NotWav("zero channels".into()));
-    }
-    if rate == 0 {
-        return Err(AudioError::NotWav("sample rate 0".into()));
-    }
-    if rate > MAX_SAMPLE_RATE_HZ {
-        return Err(AudioError::Unsupported(format!(
-            "sample rate {rate} Hz in the header; at most {MAX_SAMPLE_RATE_HZ} Hz is accepted"
-        )));
-    }
-    if n_ch > usize::from(MAX_CHANNELS) {
-        return Err(AudioError::Unsupported(format!(
-            "{n_ch} channels in the header; at most {MAX_CHANNELS} are accepted"
-        )));
-    }
+    let (format, n_ch) = check_fmt(tag, n_ch, rate, bits)?;
     let width = usize::from(bits / 8);
     let frame_bytes = width * n_ch;
     let frames = data.len() / frame_bytes;
@@ -391,24 +398,7 @@ impl WavStream {
         let Some((tag, n_ch, rate, bits)) = fmt else {
             return Err(AudioError::NotWav("the data chunk comes before any fmt chunk".into()));
         };
-        let format = sample_format(tag, bits)?;
-        let n_ch = usize::from(n_ch);
-        if n_ch == 0 {
-            return Err(AudioError::NotWav("zero channels".into()));
-        }
-        if rate == 0 {
-            return Err(AudioError::NotWav("sample rate 0".into()));
-        }
-        if rate > MAX_SAMPLE_RATE_HZ {
-            return Err(AudioError::Unsupported(format!(
-                "sample rate {rate} Hz in the header; at most {MAX_SAMPLE_RATE_HZ} Hz is accepted"
-            )));
-        }
-        if n_ch > usize::from(MAX_CHANNELS) {
-            return Err(AudioError::Unsupported(format!(
-                "{n_ch} channels in the header; at most {MAX_CHANNELS} are accepted"
-            )));
-        }
+        let (format, n_ch) = check_fmt(tag, n_ch, rate, bits)?;
         let frame_bytes = usize::from(bits / 8) * n_ch;
         let frames = usize::try_from(data_len / frame_bytes as u64).unwrap_or(usize::MAX);
         if frames == 0 {
