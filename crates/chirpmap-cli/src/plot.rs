@@ -70,10 +70,9 @@ where
     Ok(chart)
 }
 
-/// The legend box in the upper right, then the figure written out.
-pub(crate) fn legend_and_present<'a, DB: DrawingBackend + 'a, CT: plotters::coord::CoordTranslate>(
+/// The legend box in the upper right (every figure with labelled series).
+pub(crate) fn draw_legend<'a, DB: DrawingBackend + 'a, CT: plotters::coord::CoordTranslate>(
     chart: &mut ChartContext<'a, DB, CT>,
-    root: &DrawingArea<DB, Shift>,
 ) -> Result<()>
 where
     DB::ErrorType: 'static,
@@ -86,6 +85,18 @@ where
         .position(SeriesLabelPosition::UpperRight)
         .draw()
         .map_err(plot_err)?;
+    Ok(())
+}
+
+/// The legend box, then the figure written out.
+pub(crate) fn legend_and_present<'a, DB: DrawingBackend + 'a, CT: plotters::coord::CoordTranslate>(
+    chart: &mut ChartContext<'a, DB, CT>,
+    root: &DrawingArea<DB, Shift>,
+) -> Result<()>
+where
+    DB::ErrorType: 'static,
+{
+    draw_legend(chart)?;
     root.present().map_err(plot_err)?;
     Ok(())
 }
@@ -652,14 +663,7 @@ where
             .label("highlights")
             .legend(|(x, y)| Circle::new((x + 8, y), 5, HIGHLIGHT.stroke_width(3)));
     }
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.9))
-        .border_style(BLACK)
-        .label_font(("sans-serif", 14))
-        .position(SeriesLabelPosition::UpperRight)
-        .draw()
-        .map_err(plot_err)?;
+    draw_legend(&mut chart)?;
 
     let cmap = style.colour_map;
     colour_bar(
