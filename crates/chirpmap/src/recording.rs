@@ -87,15 +87,20 @@ impl Prepared {
     }
 }
 
-fn prepare_inner(mut x: Vec<f32>, sample_rate_hz: f64, chirp: &ChirpSpec, any_sweep: bool) -> Result<Prepared> {
+/// The speed of sound, if plausible ([`SPEED_OF_SOUND_RANGE_MPS`]).
+pub(crate) fn check_speed(a: f64) -> Result<f64> {
     let (lo, hi) = SPEED_OF_SOUND_RANGE_MPS;
-    let a = chirp.speed_of_sound_mps;
     if !(a.is_finite() && (lo..=hi).contains(&a)) {
         return Err(Error::Field {
             field: "speed_of_sound",
             reason: format!("must be between {lo} and {hi} m/s (air: about 343), got {a}"),
         });
     }
+    Ok(a)
+}
+
+fn prepare_inner(mut x: Vec<f32>, sample_rate_hz: f64, chirp: &ChirpSpec, any_sweep: bool) -> Result<Prepared> {
+    check_speed(chirp.speed_of_sound_mps)?;
     if x.iter().all(|v| *v == 0.0) {
         return Err(Error::Invalid("the channel is silent (every sample is zero)".into()));
     }
@@ -270,14 +275,7 @@ impl RangeReport {
         let wav = open()?;
         let fs = f64::from(wav.sample_rate_hz);
         let (n, n_channels) = (wav.frames, wav.n_channels);
-        let (lo, hi) = SPEED_OF_SOUND_RANGE_MPS;
-        let a = chirp.speed_of_sound_mps;
-        if !(a.is_finite() && (lo..=hi).contains(&a)) {
-            return Err(Error::Field {
-                field: "speed_of_sound",
-                reason: format!("must be between {lo} and {hi} m/s (air: about 343), got {a}"),
-            });
-        }
+        check_speed(chirp.speed_of_sound_mps)?;
         let (tpl, lim) = template_and_limits(n, fs, chirp, false)?;
         geom.validate()?;
         if methods.is_empty() {

@@ -13,7 +13,7 @@
 //! echoes of the floor and the ceiling are labelled and left out of it.
 
 use crate::error::{Error, Result};
-use crate::recording::{ChirpSpec, SPEED_OF_SOUND_RANGE_MPS};
+use crate::recording::{ChirpSpec, check_speed};
 use chirpmap_audio::echoes::{Complex64, Pursuit, PursuitParams, SystemResponse, pursue};
 use chirpmap_audio::farina::SweepKernel;
 use chirpmap_audio::filter::paper_highpass;
@@ -87,17 +87,6 @@ fn largest_delta_d(a: f64, chirp: &ChirpSpec, kernel: &SweepKernel) -> Result<f6
         max_dd = max_dd.min(0.9 * a * lag);
     }
     Ok(max_dd)
-}
-
-fn check_speed(a: f64) -> Result<f64> {
-    let (lo, hi) = SPEED_OF_SOUND_RANGE_MPS;
-    if !(a.is_finite() && (lo..=hi).contains(&a)) {
-        return Err(Error::Field {
-            field: "speed_of_sound",
-            reason: format!("must be between {lo} and {hi} m/s (air: about 343), got {a}"),
-        });
-    }
-    Ok(a)
 }
 
 /// Where the speaker and the microphone stand, in 2D or 3D, and where the
