@@ -267,16 +267,46 @@ impl Stage {
             return None;
         }
         let g = num / den;
+        self.apply(res, s0, -g);
+        Some(g)
+    }
+
+    /// Puts back an arrival [`Stage::subtract`] removed (start `s0`, gain `g`).
+    fn restore(&mut self, res: &mut [Complex64], s0: f64, g: Complex64) {
+        self.apply(res, s0, g);
+    }
+
+    /// `res += g · (whole response, or atom) starting at s0`, then the
+    /// correlation is brought up to date where it changed.
+    fn apply(&mut self, res: &mut [Complex64], s0: f64, g: Complex64) {
+        let ist = s0.floor() as usize;
+        let frac = s0 - ist as f64;
         let tt = match self.whole.as_mut() {
-            Some(w) => w.shifted(s0 - ist as f64),
-            None => tt,
+            Some(w) => w.shifted(frac),
+            None => self.shifter.shifted(frac),
         };
         let end = (ist + tt.len()).min(res.len());
+        if ist >= end {
+            return;
+        }
         for (r, t) in res[ist..end].iter_mut().zip(&tt) {
-            *r -= g * t;
+            *r += g * t;
         }
         self.update(res, ist, end);
-        Some(g)
+    }
+
+    /// Re-fits the arrival picked at `s0` with gain `g` against the current
+    /// residual (every other arrival removed): put back, located again
+    /// within its main lobe, fitted and removed. Returns the new start and
+    /// gain (the old ones if no peak is left there).
+    fn refit(&mut self, res: &mut [Complex64], s0: f64, g: Complex64) -> Option<(f64, Complex64)> {
+        self.restore(res, s0, g);
+        let k0 = s0.round() as usize;
+        let s1 = match self.best_peak(k0.saturating_sub(MERGE_SAMPLES + 1), k0 + MERGE_SAMPLES + 2) {
+            Some(k) => refine(&self.corr, k),
+            None => s0,
+        };
+        Some((s1, self.subtract(res, s1)?))
     }
 
     /// The strongest start in `lo..hi`.
@@ -293,6 +323,10 @@ impl Stage {
             .max_by(|&a, &b| c(a).total_cmp(&c(b)))
     }
 }
+
+/// Two arrivals closer than this (samples) are one: no atom of a sweep
+/// resolves them (10 kHz of bandwidth at 48 kHz is a 4.8-sample main lobe).
+const MERGE_SAMPLES: usize = 2;
 
 /// Explains `ir` as the direct arrival plus echoes (see the module docs).
 /// The direct arrival is removed with the whole atom (its ringing
@@ -334,22 +368,51 @@ pub fn pursue(ir: &[Complex64], atom: &SystemResponse, p: &PursuitParams) -> Opt
     // atom starts `lag` after the direct atom's start.
     let lo = (direct_start + p.min_lag).ceil().max(0.0) as usize;
     let hi = ((direct_start + p.max_lag).floor().max(0.0) as usize + 1).min(stage.corr.len());
-    let mut arrivals = Vec::new();
-    while arrivals.len() < p.max_echoes && lo + 2 < hi {
+    // Picked arrivals: (start in `res`, complex gain against the atom).
+    let mut picked: Vec<(f64, Complex64)> = Vec::new();
+    // Each pass either adds an arrival or re-fits one; re-fits are bounded.
+    let mut refits_left = 2 * p.max_echoes;
+    while picked.len() < p.max_echoes && lo + 2 < hi {
         let Some(k) = stage.best_peak(lo, hi) else { break };
         if stage.corr[k].norm() < thr * g0n {
             break;
         }
         let s0 = refine(&stage.corr, k);
+        // A peak within the main lobe of an arrival already picked is that
+        // arrival's fit error (the tail of a neighbour found later had
+        // biased it), not a second arrival: re-fit it instead (cyclic
+        // matching pursuit, Christensen & Jensen 2007).
+        if let Some(j) = picked.iter().position(|(s, _)| (s - s0).abs() < MERGE_SAMPLES as f64) {
+            if refits_left == 0 {
+                break;
+            }
+            refits_left -= 1;
+            let Some(fit) = stage.refit(&mut res, picked[j].0, picked[j].1) else { break };
+            picked[j] = fit;
+            continue;
+        }
         let Some(g) = stage.subtract(&mut res, s0) else { break };
-        let rel = g / g0;
-        if rel.norm() < 0.5 * thr {
+        if (g / g0).norm() < 0.5 * thr {
             // The fit explains far less than the correlation promised: the
             // residual there is not atom-shaped; stop rather than loop.
             break;
         }
-        arrivals.push(Arrival { lag_samples: s0 - direct_start, amplitude: rel.norm(), phase_rad: rel.arg() });
+        picked.push((s0, g));
     }
+    // One cyclic pass: each arrival re-fitted with all the others removed,
+    // so that a later neighbour's ringing no longer biases it.
+    for j in 0..picked.len() {
+        if let Some(fit) = stage.refit(&mut res, picked[j].0, picked[j].1) {
+            picked[j] = fit;
+        }
+    }
+    let arrivals = picked
+        .iter()
+        .map(|&(s0, g)| {
+            let rel = g / g0;
+            Arrival { lag_samples: s0 - direct_start, amplitude: rel.norm(), phase_rad: rel.arg() }
+        })
+        .collect();
     Some(Pursuit { direct_index: direct_start + pk as f64, direct_gain: g0, arrivals })
 }
 
