@@ -401,9 +401,9 @@ pub fn pursue(ir: &[Complex64], atom: &SystemResponse, p: &PursuitParams) -> Opt
     }
     // One cyclic pass: each arrival re-fitted with all the others removed,
     // so that a later neighbour's ringing no longer biases it.
-    for j in 0..picked.len() {
-        if let Some(fit) = stage.refit(&mut res, picked[j].0, picked[j].1) {
-            picked[j] = fit;
+    for arrival in &mut picked {
+        if let Some(fit) = stage.refit(&mut res, arrival.0, arrival.1) {
+            *arrival = fit;
         }
     }
     let arrivals = picked

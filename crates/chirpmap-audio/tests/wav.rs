@@ -127,7 +127,7 @@ fn missing_channel_is_an_error() {
 
 // Fuzz harness: the reader must return (Ok or Err) on any bytes, never
 // panic. CI runs the default 256 cases per property; for a longer run:
-// `PROPTEST_CASES=20000000 cargo test -p chirpmap-audio --test wav fuzz` (run once for
+// `PROPTEST_CASES=20000000 cargo test -p chirpmap-audio --test integration wav::fuzz` (run once for
 // issue 5: 20 M cases per property, 110 s, no panic).
 proptest! {
     #[test]

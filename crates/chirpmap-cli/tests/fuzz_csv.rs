@@ -3,14 +3,11 @@
 //! built from hostile values under valid headers with every line ending,
 //! never panic; what parses satisfies the readers' promises.
 //!
-//! The readers live in the `chirpmap` binary, so they are compiled in here
-//! from their source files. `CHIRPMAP_FUZZ_CASES=N` raises the case count.
+//! The readers live in the `chirpmap` binary, so they are compiled into this
+//! test executable from their source files (tests/main.rs). `CHIRPMAP_FUZZ_CASES=N` raises the case count.
 #![allow(clippy::unwrap_used, dead_code)]
 
-#[path = "../src/echoes_csv.rs"]
-mod echoes_csv;
-#[path = "../src/poses_csv.rs"]
-mod poses_csv;
+use crate::{echoes_csv, poses_csv};
 
 use proptest::prelude::*;
 

@@ -155,7 +155,7 @@ fn streamed_range_is_the_in_memory_one() {
 }
 
 /// `CHIRPMAP_STREAM_WAV=hour.wav CHIRPMAP_STREAM_SCENE=scene.toml cargo test --release -p chirpmap-cli
-/// --test range_stream -- --ignored`: the same check on a given recording (the hour benchmark).
+/// --test integration range_stream:: -- --ignored`: the same check on a given recording (the hour benchmark).
 #[test]
 #[ignore = "needs CHIRPMAP_STREAM_WAV and CHIRPMAP_STREAM_SCENE"]
 fn streamed_report_is_the_in_memory_one_on_a_given_recording() {
