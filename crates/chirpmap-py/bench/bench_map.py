@@ -7,7 +7,7 @@ Python time includes reading the numpy array into echoes and handing the
 grid back as an array; the Rust time is the library call on a ready
 `Vec<Echo>`.
 
-    cargo build --release -p chirpmap-py --example map_bench
+    cargo build --release -p chirpmap --example map_bench
     python crates/chirpmap-py/bench/bench_map.py [--reps 7] [--n 100000]
 """
 

@@ -6,7 +6,7 @@
 //! bounds covering every ellipse) `reps` times and prints each wall time
 //! in seconds, one a line, and the checksum of the last map.
 //!
-//! `cargo run --release -p chirpmap-py --example map_bench -- ECHOES.f64 [REPS]`
+//! `cargo run --release -p chirpmap --example map_bench -- ECHOES.f64 [REPS]`
 
 use chirpmap::{Echo, MapOptions, Point};
 use std::time::Instant;
