@@ -87,34 +87,37 @@ pub fn write_npy(path: &Path, grid: &Grid) -> Result<()> {
     std::fs::write(path, npy_bytes(grid)?).with_context(|| format!("cannot write {}", path.display()))
 }
 
-/// Occupancy in `[0, 1]` of every cell under `values`, or an error naming
-/// the first cell that does not fit the interpretation.
-fn occupancy(grid: &Grid, values: MapValues) -> Result<Vec<f64>> {
+/// Checks every cell under `values` and returns the divisor that maps it to
+/// an occupancy in `[0, 1]` (`occupancy = value / divisor`), or an error
+/// naming the first cell that does not fit the interpretation.
+fn occupancy_divisor(grid: &Grid, values: MapValues) -> Result<f64> {
     let bad = |k: usize, v: f64, what: &str| {
         let (i, j) = (k % grid.spec.nx, k / grid.spec.nx);
         anyhow::anyhow!("cell ({i}, {j}) holds {v}, not {what}")
     };
     match values {
-        MapValues::Probability => grid
-            .data
-            .iter()
-            .enumerate()
-            .map(|(k, &v)| if (0.0..=1.0).contains(&v) { Ok(v) } else { Err(bad(k, v, "a probability in [0, 1]")) })
-            .collect(),
+        MapValues::Probability => match grid.data.iter().position(|v| !(0.0..=1.0).contains(v)) {
+            Some(k) => Err(bad(k, grid.data[k], "a probability in [0, 1]")),
+            None => Ok(1.0),
+        },
         MapValues::Evidence => {
             if let Some((k, &v)) = grid.data.iter().enumerate().find(|(_, v)| !(v.is_finite() && **v >= 0.0)) {
                 return Err(bad(k, v, "finite non-negative evidence"));
             }
-            let max = grid.data.iter().copied().fold(0.0, f64::max);
-            Ok(grid.data.iter().map(|&v| if max > 0.0 { v / max } else { 0.0 }).collect())
+            Ok(grid.data.iter().copied().fold(0.0, f64::max))
         }
     }
 }
 
 /// Grey level of occupancy `p` for `map_server` with `negate: 0`, which reads
 /// a pixel `g` as occupancy `(255 − g) / 255`: black = occupied, white = free.
+/// `round` without the libm call (the x86-64 baseline has no rounding
+/// instruction): for `x` in [0, 255], `x − trunc(x)` is exact, so this is
+/// `x.round()` bit for bit, ties away from zero included.
 fn grey_of(p: f64) -> u8 {
-    (255.0 * (1.0 - p)).round().clamp(0.0, 255.0) as u8
+    let x = (255.0 * (1.0 - p)).clamp(0.0, 255.0);
+    let whole = x as u8;
+    if x - f64::from(whole) >= 0.5 { whole + 1 } else { whole }
 }
 
 /// A ROS `map_server` map: the PGM image and its YAML description.
@@ -131,11 +134,15 @@ pub struct RosMap {
 pub fn ros_map(grid: &Grid, values: MapValues, image: &str) -> Result<RosMap> {
     check_shape(grid)?;
     let spec = grid.spec;
-    let occ = occupancy(grid, values)?;
+    let divisor = occupancy_divisor(grid, values)?;
     let mut pgm = format!("P5\n{} {}\n255\n", spec.nx, spec.ny).into_bytes();
-    pgm.reserve(occ.len());
-    for row in occ.chunks_exact(spec.nx).rev() {
-        pgm.extend(row.iter().map(|&p| grey_of(p)));
+    pgm.reserve(grid.data.len());
+    for row in grid.data.chunks_exact(spec.nx).rev() {
+        if divisor > 0.0 {
+            pgm.extend(row.iter().map(|&v| grey_of(v / divisor)));
+        } else {
+            pgm.extend(row.iter().map(|_| grey_of(0.0)));
+        }
     }
     let mut yaml = String::new();
     // Debug formatting keeps a decimal point ("-50.0"), so YAML reads floats.
@@ -275,6 +282,14 @@ mod tests {
     }
 
     proptest! {
+        /// The libm-free rounding equals `f64::round` (the oracle), ties and
+        /// the clamped ends included.
+        #[test]
+        fn grey_of_rounds_as_f64_round(p in prop_oneof![-0.1f64..1.1, (0u32..=510).prop_map(|h| 1.0 - f64::from(h) / 510.0)]) {
+            let oracle = (255.0 * (1.0 - p)).round().clamp(0.0, 255.0) as u8;
+            prop_assert_eq!(grey_of(p), oracle);
+        }
+
         #[test]
         fn npy_round_trips_any_grid(nx in 1usize..40, ny in 1usize..40, seed in any::<u64>()) {
             let data: Vec<f64> = (0..nx * ny)
