@@ -14,6 +14,10 @@
 //! rendered (specular only), occlusion is not modelled, and only first-order
 //! reflections are rendered.
 
+mod streamed;
+
+pub use streamed::{CHUNK_FRAMES, SynthStream, synthesize_streamed};
+
 use crate::detect::taper_gain;
 use crate::error::AudioError;
 use crate::wav::SampleFormat;
@@ -232,6 +236,20 @@ pub fn listener_position(l: &ListenerSpec, t_s: f64) -> Point {
     p0 + Point::new(r * (th.sin() - th0.sin()), -r * (th.cos() - th0.cos()))
 }
 
+/// Listener `li`'s poses as [`synthesize`] returns them: `(t, position)`
+/// every `pose_period_s` from 0 to the recording's end (none for a listener
+/// the scene does not have).
+pub fn listener_poses<'a>(scene: &'a Scene, cfg: &SynthConfig, li: usize) -> impl Iterator<Item = (f64, Point)> + 'a {
+    let step = cfg.pose_period_s;
+    let period = scene.chirp.duration + cfg.gap_s;
+    let total_s = cfg.start_s + cfg.chirps as f64 * period - cfg.gap_s + cfg.tail_s;
+    let n_pose = if li < scene.listeners.len() { (total_s / step).floor() as usize + 1 } else { 0 };
+    (0..n_pose).map(move |k| {
+        let t = k as f64 * step;
+        (t, listener_position(&scene.listeners[li], t))
+    })
+}
+
 /// One propagation path during a pose block: length `base + |x_L − q|`.
 #[derive(Debug, Clone, Copy)]
 struct Path {
@@ -295,7 +313,267 @@ pub struct Synthesized {
     pub chirp_starts_s: Vec<f64>,
 }
 
-/// Renders the scene's chirp train as heard by every listener.
+/// Samples per pose block: the listener's position is taken at both ends
+/// of every block and each path's delay is linear in between. Part of the
+/// output's definition: changing it changes the samples.
+pub const POSE_BLOCK: usize = 64;
+
+/// `x.floor()` without a call into the C library (the x86-64 baseline has
+/// no rounding instruction, and `floor` calls were 7 % of `synth`'s time in
+/// a profile). Exact, as `floor` is: `x as i64` truncates exactly below 2⁵²,
+/// and the sign of zero is kept.
+#[inline(always)]
+fn floor_exact(x: f64) -> f64 {
+    if x.abs() < 4_503_599_627_370_496.0 {
+        let t = x as i64 as f64;
+        (if t > x { t - 1.0 } else { t }).copysign(x)
+    } else {
+        x
+    }
+}
+
+/// `x.floor()` for `|x| < 2⁵¹`, without a branch: adding and subtracting
+/// 1.5 · 2⁵² rounds to the nearest integer exactly in that range, and one
+/// is taken off where that went up; the sign of zero is kept.
+#[inline(always)]
+fn floor_small(x: f64) -> f64 {
+    const MAGIC: f64 = 6_755_399_441_055_744.0;
+    let r = (x + MAGIC) - MAGIC;
+    (r - if r > x { 1.0 } else { 0.0 }).copysign(x)
+}
+
+/// Everything a rendering needs, checked once: the model of the module
+/// documentation, rendered for any run of pose blocks of one listener, so
+/// that a recording can be rendered in pieces that are, sample for sample,
+/// the whole recording's (issue 14: `synth` streams).
+pub(crate) struct Renderer<'a> {
+    scene: &'a Scene,
+    cfg: &'a SynthConfig,
+    sweeps: Vec<Box<dyn chirpmap_core::Sweep>>,
+    /// Per sweep of the cycle: `(f0, ½·rate)` of a linear sweep (inlined phase).
+    linear: Vec<Option<(f64, f64)>>,
+    obstacles: Vec<Obstacle>,
+    source: Point,
+    speed_of_sound: f64,
+    fs: f64,
+    period_s: f64,
+    n: usize,
+}
+
+impl std::fmt::Debug for Renderer<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Renderer").field("samples", &self.n).field("listeners", &self.scene.listeners.len()).finish()
+    }
+}
+
+impl<'a> Renderer<'a> {
+    /// Checks `scene` and `cfg` (not the memory cap: that is the caller's)
+    /// and prepares the chirps, obstacles and lengths.
+    pub fn new(scene: &'a Scene, cfg: &'a SynthConfig) -> Result<Self, AudioError> {
+        let cycle = pattern_cycle(&scene.chirp, cfg.pattern);
+        let sweeps: Vec<Box<dyn chirpmap_core::Sweep>> =
+            cycle.iter().map(ChirpSpec::build).collect::<Result<_, _>>()?;
+        let obstacles = scene.explicit_obstacles()?;
+        let a = scene.world.speed_of_sound;
+        if !(a.is_finite() && a > 0.0) {
+            return Err(AudioError::InvalidParam { field: "world.speed_of_sound", reason: format!("{a}") });
+        }
+        let fs = f64::from(cfg.sample_rate_hz);
+        if scene.chirp.f_start.max(scene.chirp.f_end) >= fs / 2.0 {
+            return Err(AudioError::InvalidParam {
+                field: "chirp",
+                reason: format!("the sweep exceeds the Nyquist frequency {} Hz", fs / 2.0),
+            });
+        }
+        let t_chirp = scene.chirp.duration;
+        let linear = cycle
+            .iter()
+            .map(|c| match c.kind {
+                SweepKind::Linear => Some((c.f_start, 0.5 * (c.f_end - c.f_start) / t_chirp)),
+                SweepKind::Exponential | SweepKind::Hyperbolic => None,
+            })
+            .collect();
+        let period_s = t_chirp + cfg.gap_s;
+        let total_s = cfg.start_s + cfg.chirps as f64 * period_s - cfg.gap_s + cfg.tail_s;
+        let n = (total_s * fs).ceil() as usize;
+        if n > 2_000_000_000 {
+            return Err(AudioError::InvalidParam { field: "synth", reason: format!("{} s is too long", Num(total_s)) });
+        }
+        Ok(Self {
+            scene,
+            cfg,
+            sweeps,
+            linear,
+            obstacles,
+            source: scene.source_position(),
+            speed_of_sound: a,
+            fs,
+            period_s,
+            n,
+        })
+    }
+
+    /// Samples per channel.
+    pub fn len_samples(&self) -> usize {
+        self.n
+    }
+
+    /// Adds listener `li`'s noiseless signal for samples `start..start +
+    /// out.len()` to `out` (zeros in, the recording's samples out).
+    /// `start` is a multiple of [`POSE_BLOCK`] and the run ends at a
+    /// multiple of it or at the recording's end.
+    pub fn render(&self, li: usize, start: usize, out: &mut [f32]) {
+        debug_assert!(start.is_multiple_of(POSE_BLOCK));
+        let Some(l) = self.scene.listeners.get(li) else { return };
+        let end = (start + out.len()).min(self.n);
+        let (cfg, fs, a, period) = (self.cfg, self.fs, self.speed_of_sound, self.period_s);
+        let t_chirp = self.scene.chirp.duration;
+        let mut paths = Vec::new();
+        let mut args = [0.0f32; POSE_BLOCK];
+        let mut p_a = listener_position(l, start as f64 / fs);
+        for b0 in (start..end).step_by(POSE_BLOCK) {
+            let b1 = (b0 + POSE_BLOCK).min(self.n);
+            let p_b = listener_position(l, b1 as f64 / fs);
+            paths_at(self.source, &self.obstacles, p_a, &mut paths);
+            let len = (b1 - b0) as f64;
+            let y = &mut out[b0 - start..b1 - start];
+            for p in &paths {
+                // Path length at both block ends; the delay is linear in
+                // between to well below a nanosecond (64 samples).
+                let (ra, rb) = (p.base_m + p.q.dist(p_a), p.base_m + p.q.dist(p_b));
+                let gain = p.gain / ra.max(0.1);
+                // Emission time (relative to the first chirp) at the block ends.
+                let te_a = b0 as f64 / fs - ra / a - cfg.start_s;
+                let te_b = b1 as f64 / fs - rb / a - cfg.start_s;
+                let dte = (te_b - te_a) / len;
+                // Skip blocks in which this path carries no chirp.
+                let (k_a, k_b) = (floor_exact(te_a / period), floor_exact(te_b / period));
+                let silent = te_b < 0.0 || k_a >= cfg.chirps as f64 || (k_a == k_b && te_a - k_a * period > t_chirp);
+                if silent {
+                    continue;
+                }
+                // Fast path: the whole block inside one chirp, away from its
+                // tapers. Every step from k to the sample's emission time,
+                // chirp index and τ is monotone non-decreasing in k when
+                // dte ≥ 0 (each is one correctly rounded operation), so the
+                // first and last samples bound all others, and the per-sample
+                // tests of the general loop below all pass.
+                let last = y.len() - 1;
+                let (te_0, te_1) = (te_a + dte * 0.0, te_a + dte * last as f64);
+                if dte >= 0.0 && te_0 >= 0.0 {
+                    let idx = floor_exact(te_0 / period);
+                    let base = idx * period;
+                    let (tau_0, tau_1) = (te_0 - base, te_1 - base);
+                    if idx == floor_exact(te_1 / period)
+                        && idx < cfg.chirps as f64
+                        && tau_0 >= cfg.taper_s
+                        && t_chirp - tau_1 >= cfg.taper_s
+                    {
+                        let which = (idx as usize) % self.sweeps.len();
+                        let args = &mut args[..y.len()];
+                        match self.linear[which] {
+                            // |phase| ≤ τ₁(|f0| + |½rate|·τ₁) < 2⁵⁰: floor_small applies.
+                            Some((f0, half_rate)) if tau_1 * (f0.abs() + half_rate.abs() * tau_1) < 1e15 => {
+                                let mut kf = 0.0f64;
+                                for arg in args.iter_mut() {
+                                    let tau = (te_a + dte * kf) - base;
+                                    let ph = tau * (f0 + half_rate * tau);
+                                    *arg = std::f32::consts::TAU * (ph - floor_small(ph)) as f32;
+                                    kf += 1.0;
+                                }
+                            }
+                            Some((f0, half_rate)) => {
+                                for (k, arg) in args.iter_mut().enumerate() {
+                                    let tau = (te_a + dte * k as f64) - base;
+                                    let ph = tau * (f0 + half_rate * tau);
+                                    *arg = std::f32::consts::TAU * (ph - floor_exact(ph)) as f32;
+                                }
+                            }
+                            None => {
+                                for (k, arg) in args.iter_mut().enumerate() {
+                                    let tau = (te_a + dte * k as f64) - base;
+                                    let ph = self.sweeps[which].phase_cycles(tau);
+                                    *arg = std::f32::consts::TAU * (ph - floor_exact(ph)) as f32;
+                                }
+                            }
+                        }
+                        for (out, arg) in y.iter_mut().zip(args.iter()) {
+                            *out += (gain * f64::from(arg.sin())) as f32;
+                        }
+                        continue;
+                    }
+                }
+                for (k, out) in y.iter_mut().enumerate() {
+                    let te = te_a + dte * k as f64;
+                    if te < 0.0 {
+                        continue;
+                    }
+                    let idx = floor_exact(te / period);
+                    if idx >= cfg.chirps as f64 {
+                        continue;
+                    }
+                    let tau = te - idx * period;
+                    if tau > t_chirp {
+                        continue;
+                    }
+                    let which = (idx as usize) % self.sweeps.len();
+                    let ph = match self.linear[which] {
+                        Some((f0, half_rate)) => tau * (f0 + half_rate * tau),
+                        None => self.sweeps[which].phase_cycles(tau),
+                    };
+                    let sv = (std::f32::consts::TAU * (ph - floor_exact(ph)) as f32).sin();
+                    let g = if tau < cfg.taper_s || t_chirp - tau < cfg.taper_s {
+                        gain * taper_gain(tau, t_chirp, cfg.taper_s)
+                    } else {
+                        gain
+                    };
+                    *out += (g * f64::from(sv)) as f32;
+                }
+            }
+            p_a = p_b;
+        }
+    }
+
+    /// Listener `li`'s poses: `(t, position)` every `pose_period_s` from 0
+    /// to the recording's end.
+    pub fn poses(&self, li: usize) -> impl Iterator<Item = (f64, Point)> + '_ {
+        listener_poses(self.scene, self.cfg, li)
+    }
+
+    /// Emission time of each chirp's start (s).
+    pub fn chirp_starts_s(&self) -> Vec<f64> {
+        (0..self.cfg.chirps).map(|k| self.cfg.start_s + k as f64 * self.period_s).collect()
+    }
+}
+
+/// Standard deviation of the noise added to a noiseless channel whose
+/// sounding samples (the non-zero ones, in order) have power `power_sum`
+/// over `sounding` samples: `None` without `snr_db` or without sound.
+fn noise_sigma(cfg: &SynthConfig, power_sum: f64, sounding: usize) -> Option<f32> {
+    let snr = cfg.snr_db?;
+    (sounding > 0).then(|| ((power_sum / sounding as f64) / 10f64.powf(snr / 10.0)).sqrt() as f32)
+}
+
+/// The noise stream of listener `li` (ChaCha8, `noise_seed`, stream `li`).
+fn noise_rng(cfg: &SynthConfig, li: usize) -> rand_chacha::ChaCha8Rng {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(cfg.noise_seed);
+    rng.set_stream(li as u64);
+    rng
+}
+
+/// Adds each sample's power to `(sum, count)` if it sounds (is non-zero),
+/// in order.
+fn accumulate_power(y: &[f32], acc: &mut (f64, usize)) {
+    for v in y {
+        if *v != 0.0 {
+            acc.0 += f64::from(*v) * f64::from(*v);
+            acc.1 += 1;
+        }
+    }
+}
+
+/// Renders the scene's chirp train as heard by every listener, in memory
+/// (see [`synthesize_streamed`] for any length in constant memory).
 pub fn synthesize(scene: &Scene, cfg: &SynthConfig) -> Result<Synthesized, AudioError> {
     scene.validate()?;
     cfg.validate()?;
@@ -314,113 +592,22 @@ pub fn synthesize(scene: &Scene, cfg: &SynthConfig) -> Result<Synthesized, Audio
         synth_memory_bytes(scene, cfg) as u128,
         "use fewer listeners, fewer or shorter chirps, or a longer synth.pose_period_s",
     )?;
-    let cycle = pattern_cycle(&scene.chirp, cfg.pattern);
-    let sweeps: Vec<Box<dyn chirpmap_core::Sweep>> = cycle.iter().map(ChirpSpec::build).collect::<Result<_, _>>()?;
-    let obstacles = scene.explicit_obstacles()?;
-    let a = scene.world.speed_of_sound;
-    if !(a.is_finite() && a > 0.0) {
-        return Err(AudioError::InvalidParam { field: "world.speed_of_sound", reason: format!("{a}") });
-    }
-    let fs = f64::from(cfg.sample_rate_hz);
-    if scene.chirp.f_start.max(scene.chirp.f_end) >= fs / 2.0 {
-        return Err(AudioError::InvalidParam {
-            field: "chirp",
-            reason: format!("the sweep exceeds the Nyquist frequency {} Hz", fs / 2.0),
-        });
-    }
-    let t_chirp = scene.chirp.duration;
-    // Linear sweeps (the paper's) get an inlined phase; others use the trait.
-    let linear: Vec<Option<(f64, f64)>> = cycle
-        .iter()
-        .map(|c| match c.kind {
-            SweepKind::Linear => Some((c.f_start, 0.5 * (c.f_end - c.f_start) / t_chirp)),
-            SweepKind::Exponential | SweepKind::Hyperbolic => None,
-        })
-        .collect();
-    let period = t_chirp + cfg.gap_s;
-    let total_s = cfg.start_s + cfg.chirps as f64 * period - cfg.gap_s + cfg.tail_s;
-    let n = (total_s * fs).ceil() as usize;
-    if n > 2_000_000_000 {
-        return Err(AudioError::InvalidParam { field: "synth", reason: format!("{} s is too long", Num(total_s)) });
-    }
-    let source = scene.source_position();
-    let block = 64usize;
+    let r = Renderer::new(scene, cfg)?;
     let mut channels = Vec::new();
     let mut poses = Vec::new();
-    let mut paths = Vec::new();
-    for (li, l) in scene.listeners.iter().enumerate() {
-        let mut y = vec![0.0f32; n];
-        let mut p_a = listener_position(l, 0.0);
-        for b0 in (0..n).step_by(block) {
-            let b1 = (b0 + block).min(n);
-            let p_b = listener_position(l, b1 as f64 / fs);
-            paths_at(source, &obstacles, p_a, &mut paths);
-            let len = (b1 - b0) as f64;
-            for p in &paths {
-                // Path length at both block ends; the delay is linear in
-                // between to well below a nanosecond (64 samples).
-                let (ra, rb) = (p.base_m + p.q.dist(p_a), p.base_m + p.q.dist(p_b));
-                let gain = p.gain / ra.max(0.1);
-                // Emission time (relative to the first chirp) at the block ends.
-                let te_a = b0 as f64 / fs - ra / a - cfg.start_s;
-                let te_b = b1 as f64 / fs - rb / a - cfg.start_s;
-                let dte = (te_b - te_a) / len;
-                // Skip blocks in which this path carries no chirp.
-                let (k_a, k_b) = ((te_a / period).floor(), (te_b / period).floor());
-                let silent = te_b < 0.0 || k_a >= cfg.chirps as f64 || (k_a == k_b && te_a - k_a * period > t_chirp);
-                if silent {
-                    continue;
-                }
-                for (k, out) in y[b0..b1].iter_mut().enumerate() {
-                    let te = te_a + dte * k as f64;
-                    if te < 0.0 {
-                        continue;
-                    }
-                    let idx = (te / period).floor();
-                    if idx >= cfg.chirps as f64 {
-                        continue;
-                    }
-                    let tau = te - idx * period;
-                    if tau > t_chirp {
-                        continue;
-                    }
-                    let which = (idx as usize) % sweeps.len();
-                    let ph = match linear[which] {
-                        Some((f0, half_rate)) => tau * (f0 + half_rate * tau),
-                        None => sweeps[which].phase_cycles(tau),
-                    };
-                    let sv = (std::f32::consts::TAU * (ph - ph.floor()) as f32).sin();
-                    let g = if tau < cfg.taper_s || t_chirp - tau < cfg.taper_s {
-                        gain * taper_gain(tau, t_chirp, cfg.taper_s)
-                    } else {
-                        gain
-                    };
-                    *out += (g * f64::from(sv)) as f32;
-                }
-            }
-            p_a = p_b;
-        }
-        if let Some(snr) = cfg.snr_db {
-            let (mut pw, mut cnt) = (0.0f64, 0usize);
-            for v in &y {
-                if *v != 0.0 {
-                    pw += f64::from(*v) * f64::from(*v);
-                    cnt += 1;
-                }
-            }
-            if cnt > 0 {
-                let sigma = ((pw / cnt as f64) / 10f64.powf(snr / 10.0)).sqrt() as f32;
-                let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(cfg.noise_seed);
-                rng.set_stream(li as u64);
-                for v in y.iter_mut() {
-                    let g: f32 = StandardNormal.sample(&mut rng);
-                    *v += sigma * g;
-                }
+    for li in 0..scene.listeners.len() {
+        let mut y = vec![0.0f32; r.len_samples()];
+        r.render(li, 0, &mut y);
+        let mut acc = (0.0, 0);
+        accumulate_power(&y, &mut acc);
+        if let Some(sigma) = noise_sigma(cfg, acc.0, acc.1) {
+            let mut rng = noise_rng(cfg, li);
+            for v in y.iter_mut() {
+                let g: f32 = StandardNormal.sample(&mut rng);
+                *v += sigma * g;
             }
         }
-        let step = cfg.pose_period_s;
-        let n_pose = (total_s / step).floor() as usize + 1;
-        poses.push((0..n_pose).map(|k| (k as f64 * step, listener_position(l, k as f64 * step))).collect());
+        poses.push(r.poses(li).collect());
         channels.push(y);
     }
     let peak = channels.iter().flat_map(|c| c.iter()).fold(0.0f32, |m, v| m.max(v.abs()));
@@ -432,8 +619,7 @@ pub fn synthesize(scene: &Scene, cfg: &SynthConfig) -> Result<Synthesized, Audio
             }
         }
     }
-    let chirp_starts_s = (0..cfg.chirps).map(|k| cfg.start_s + k as f64 * period).collect();
-    Ok(Synthesized { sample_rate_hz: cfg.sample_rate_hz, channels, poses, chirp_starts_s })
+    Ok(Synthesized { sample_rate_hz: cfg.sample_rate_hz, channels, poses, chirp_starts_s: r.chirp_starts_s() })
 }
 
 #[cfg(test)]
@@ -461,6 +647,37 @@ mod tests {
         let (scene, cfg) = parse_scene_with_synth(&text).unwrap();
         let mut syn = synthesize(&scene, &cfg).unwrap();
         (scene, syn.channels.remove(0))
+    }
+
+    /// The library-free floors and rounding equal `f64::floor` and
+    /// `f64::round` bit for bit (sign of zero included) on edges and on a
+    /// spread of values over their domains.
+    #[test]
+    fn floors_and_rounding_equal_the_library_ones() {
+        let mut xs = vec![0.0, -0.0, 0.5, -0.5, 1.5, -1.5, 2.5, -2.5, 0.49999999999999994, -0.49999999999999994];
+        xs.extend([1.0 - f64::EPSILON / 2.0, 4503599627370495.5, -4503599627370495.5, 2f64.powi(51) - 0.5]);
+        xs.extend([f64::MIN_POSITIVE, -f64::MIN_POSITIVE, 1e300, -1e300, 3.0, -3.0, 1e-300]);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        for _ in 0..200_000 {
+            let m: f64 = StandardNormal.sample(&mut rng);
+            let e: f64 = StandardNormal.sample(&mut rng);
+            xs.push(m * 10f64.powf(4.0 * e));
+        }
+        for x in xs {
+            assert_eq!(floor_exact(x).to_bits(), x.floor().to_bits(), "floor_exact({x:e})");
+            if x.abs() < 2f64.powi(51) {
+                assert_eq!(floor_small(x).to_bits(), x.floor().to_bits(), "floor_small({x:e})");
+            }
+            let r = crate::wav::round_half_away(x);
+            if x.abs() < 9e18 {
+                assert_eq!(r, x.round(), "round_half_away({x:e})");
+            }
+        }
+        for x in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+            assert_eq!(floor_exact(x).to_bits(), x.floor().to_bits());
+            let clamp = |v: f64| v.clamp(-32_768.0, 32_767.0) as i16;
+            assert_eq!(clamp(crate::wav::round_half_away(x)), clamp(x.round()));
+        }
     }
 
     fn first_nonzero(v: &[f32], from: usize, thr: f32) -> usize {

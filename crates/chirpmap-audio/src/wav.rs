@@ -245,58 +245,160 @@ pub fn read_wav(path: &Path) -> Result<Recording, AudioError> {
 }
 
 /// Writes channels (equal length, full scale ±1; values beyond are clipped)
-/// as a WAV file in the given format.
+/// as a WAV file in the given format (one [`WavSink`] write).
 pub fn write_wav(
     path: &Path,
     sample_rate_hz: u32,
     format: SampleFormat,
     channels: &[&[f32]],
 ) -> Result<(), AudioError> {
-    let n_ch = channels.len();
     let frames = channels.first().map_or(0, |c| c.len());
-    if n_ch == 0 || n_ch > usize::from(u16::MAX) || channels.iter().any(|c| c.len() != frames) {
+    if channels.iter().any(|c| c.len() != frames) {
         return Err(AudioError::InvalidParam {
             field: "channels",
             reason: "need at least one channel, all of equal length".into(),
         });
     }
-    let (bits, sample_format) = match format {
-        SampleFormat::Int(b) => (b, hound::SampleFormat::Int),
-        SampleFormat::Float32 => (32, hound::SampleFormat::Float),
-    };
-    let spec =
-        hound::WavSpec { channels: n_ch as u16, sample_rate: sample_rate_hz, bits_per_sample: bits, sample_format };
-    let werr = |e: hound::Error| AudioError::Write(format!("{}: {e}", path.display()));
-    let file =
-        std::fs::File::create(path).map_err(|source| AudioError::Io { path: path.display().to_string(), source })?;
-    let mut w = hound::WavWriter::new(std::io::BufWriter::with_capacity(1 << 20, file), spec).map_err(werr)?;
-    match format {
-        SampleFormat::Int(16) => {
-            let mut w16 = w.get_i16_writer((frames * n_ch) as u32);
-            for i in 0..frames {
-                for c in channels {
-                    w16.write_sample((f64::from(c[i]) * 32_768.0).round().clamp(-32_768.0, 32_767.0) as i16);
-                }
-            }
-            w16.flush().map_err(werr)?;
-        }
-        SampleFormat::Int(b) => {
-            let full = 2f64.powi(i32::from(b) - 1);
-            for i in 0..frames {
-                for c in channels {
-                    w.write_sample((f64::from(c[i]) * full).round().clamp(-full, full - 1.0) as i32).map_err(werr)?;
-                }
-            }
-        }
-        SampleFormat::Float32 => {
-            for i in 0..frames {
-                for c in channels {
-                    w.write_sample(c[i].clamp(-1.0, 1.0)).map_err(werr)?;
-                }
-            }
-        }
+    let mut sink = WavSink::create(path, sample_rate_hz, format, channels.len(), frames as u64)?;
+    sink.write(channels)?;
+    sink.finalize()
+}
+
+/// Rounds half away from zero, as `f64::round` does, without a call into
+/// the C library and without a branch (the per-sample `round` call was
+/// 2.5 % of `synth`'s time, a branchy version 20 %): adding ½ − 2⁻⁵⁴ with
+/// x's sign and truncating is exact (LLVM lowers `round` the same way where
+/// the CPU can truncate), and `as i64` truncates exactly below 2⁶³. NaN
+/// gives 0 and out-of-range values saturate, which the callers' clamps turn
+/// into the same samples as `round`'s.
+#[inline]
+pub(crate) fn round_half_away(x: f64) -> f64 {
+    (x + 0.499_999_999_999_999_94f64.copysign(x)) as i64 as f64
+}
+
+/// A WAV file written block by block (issue 14: `synth` streams): the
+/// header is written by `hound` on [`WavSink::create`] and completed by
+/// [`WavSink::finalize`]; the bytes are those [`write_wav`] writes for the
+/// same samples, whatever the blocks.
+pub struct WavSink {
+    writer: hound::WavWriter<std::io::BufWriter<std::fs::File>>,
+    format: SampleFormat,
+    n_channels: usize,
+    frames_left: u64,
+    path: String,
+}
+
+impl std::fmt::Debug for WavSink {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("WavSink").field("path", &self.path).field("frames_left", &self.frames_left).finish()
     }
-    w.finalize().map_err(werr)
+}
+
+impl WavSink {
+    /// Creates `path` for `frames` frames of `n_channels` channels. Refuses
+    /// up front a recording whose data would not fit a RIFF file (4 GiB).
+    pub fn create(
+        path: &Path,
+        sample_rate_hz: u32,
+        format: SampleFormat,
+        n_channels: usize,
+        frames: u64,
+    ) -> Result<Self, AudioError> {
+        if n_channels == 0 || n_channels > usize::from(u16::MAX) {
+            return Err(AudioError::InvalidParam {
+                field: "channels",
+                reason: "need at least one channel, all of equal length".into(),
+            });
+        }
+        let (bits, sample_format) = match format {
+            SampleFormat::Int(b) => (b, hound::SampleFormat::Int),
+            SampleFormat::Float32 => (32, hound::SampleFormat::Float),
+        };
+        let data_bytes = u128::from(frames) * n_channels as u128 * u128::from(bits / 8);
+        // hound's header is at most 68 bytes (WAVE_FORMAT_EXTENSIBLE).
+        if data_bytes + 68 > u128::from(u32::MAX) {
+            return Err(AudioError::InvalidParam {
+                field: "channels",
+                reason: format!(
+                    "{frames} frames × {n_channels} channel(s) × {} bytes exceed the 4 GiB a WAV file can hold; \
+                     use fewer listeners, fewer or shorter chirps, or 16-bit samples",
+                    bits / 8
+                ),
+            });
+        }
+        let spec = hound::WavSpec {
+            channels: n_channels as u16,
+            sample_rate: sample_rate_hz,
+            bits_per_sample: bits,
+            sample_format,
+        };
+        let p = path.display().to_string();
+        let file = std::fs::File::create(path).map_err(|source| AudioError::Io { path: p.clone(), source })?;
+        let writer = hound::WavWriter::new(std::io::BufWriter::with_capacity(1 << 20, file), spec)
+            .map_err(|e| AudioError::Write(format!("{p}: {e}")))?;
+        Ok(Self { writer, format, n_channels, frames_left: frames, path: p })
+    }
+
+    /// Appends frames: one slice per channel, all of equal length.
+    pub fn write(&mut self, channels: &[&[f32]]) -> Result<(), AudioError> {
+        let frames = channels.first().map_or(0, |c| c.len());
+        if channels.len() != self.n_channels || channels.iter().any(|c| c.len() != frames) {
+            return Err(AudioError::InvalidParam {
+                field: "channels",
+                reason: "need at least one channel, all of equal length".into(),
+            });
+        }
+        if frames as u64 > self.frames_left {
+            return Err(AudioError::Write(format!("{}: more frames than declared", self.path)));
+        }
+        self.frames_left -= frames as u64;
+        let path = &self.path;
+        let werr = |e: hound::Error| AudioError::Write(format!("{path}: {e}"));
+        let w = &mut self.writer;
+        match self.format {
+            SampleFormat::Int(16) => {
+                // Bounded blocks: hound's 16-bit writer buffers what it is asked for.
+                for start in (0..frames).step_by(1 << 16) {
+                    let end = (start + (1 << 16)).min(frames);
+                    let mut w16 = w.get_i16_writer(((end - start) * channels.len()) as u32);
+                    for i in start..end {
+                        for c in channels {
+                            w16.write_sample(
+                                round_half_away(f64::from(c[i]) * 32_768.0).clamp(-32_768.0, 32_767.0) as i16
+                            );
+                        }
+                    }
+                    w16.flush().map_err(werr)?;
+                }
+            }
+            SampleFormat::Int(b) => {
+                let full = 2f64.powi(i32::from(b) - 1);
+                for i in 0..frames {
+                    for c in channels {
+                        w.write_sample(round_half_away(f64::from(c[i]) * full).clamp(-full, full - 1.0) as i32)
+                            .map_err(werr)?;
+                    }
+                }
+            }
+            SampleFormat::Float32 => {
+                for i in 0..frames {
+                    for c in channels {
+                        w.write_sample(c[i].clamp(-1.0, 1.0)).map_err(werr)?;
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Completes the header; every declared frame must have been written.
+    pub fn finalize(self) -> Result<(), AudioError> {
+        if self.frames_left != 0 {
+            return Err(AudioError::Write(format!("{}: {} frames were never written", self.path, self.frames_left)));
+        }
+        let path = self.path;
+        self.writer.finalize().map_err(|e| AudioError::Write(format!("{path}: {e}")))
+    }
 }
 
 /// A WAV file read block by block, one channel at a time (issue 14, item 4):

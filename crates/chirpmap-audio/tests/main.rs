@@ -10,5 +10,6 @@ mod fuzz_wav;
 mod limits;
 mod rooms_pursuit;
 mod scipy_reference;
+mod synth_stream;
 mod wav;
 mod wav_stream;
