@@ -276,6 +276,16 @@ pub(crate) fn round_half_away(x: f64) -> f64 {
     (x + 0.499_999_999_999_999_94f64.copysign(x)) as i64 as f64
 }
 
+/// A sample scaled to 16 bits as [`write_wav`] always did,
+/// `(v · 32768).round().clamp(−32768, 32767) as i16`, bit for bit: below
+/// 2³¹ the truncation is exact, beyond it saturates to a value the clamp
+/// maps where the old clamp did, and NaN gives 0 as before.
+#[inline]
+fn to_i16(v: f32) -> i16 {
+    let x = f64::from(v) * 32_768.0;
+    ((x + 0.499_999_999_999_999_94f64.copysign(x)) as i32).clamp(-32_768, 32_767) as i16
+}
+
 /// A WAV file written block by block (issue 14: `synth` streams): the
 /// header is written by `hound` on [`WavSink::create`] and completed by
 /// [`WavSink::finalize`]; the bytes are those [`write_wav`] writes for the
@@ -286,6 +296,8 @@ pub struct WavSink {
     n_channels: usize,
     frames_left: u64,
     path: String,
+    /// 16-bit samples of the block being written (reused).
+    ints: Vec<i16>,
 }
 
 impl std::fmt::Debug for WavSink {
@@ -336,7 +348,7 @@ impl WavSink {
         let file = std::fs::File::create(path).map_err(|source| AudioError::Io { path: p.clone(), source })?;
         let writer = hound::WavWriter::new(std::io::BufWriter::with_capacity(1 << 20, file), spec)
             .map_err(|e| AudioError::Write(format!("{p}: {e}")))?;
-        Ok(Self { writer, format, n_channels, frames_left: frames, path: p })
+        Ok(Self { writer, format, n_channels, frames_left: frames, path: p, ints: Vec::new() })
     }
 
     /// Appends frames: one slice per channel, all of equal length.
@@ -357,16 +369,21 @@ impl WavSink {
         let w = &mut self.writer;
         match self.format {
             SampleFormat::Int(16) => {
-                // Bounded blocks: hound's 16-bit writer buffers what it is asked for.
+                // Bounded blocks: hound's 16-bit writer buffers what it is
+                // asked for. The samples are converted in a loop of their
+                // own first (it vectorises), then handed over.
+                let ints = &mut self.ints;
                 for start in (0..frames).step_by(1 << 16) {
                     let end = (start + (1 << 16)).min(frames);
-                    let mut w16 = w.get_i16_writer(((end - start) * channels.len()) as u32);
-                    for i in start..end {
-                        for c in channels {
-                            w16.write_sample(
-                                round_half_away(f64::from(c[i]) * 32_768.0).clamp(-32_768.0, 32_767.0) as i16
-                            );
-                        }
+                    ints.clear();
+                    if let [c] = channels {
+                        ints.extend(c[start..end].iter().map(|v| to_i16(*v)));
+                    } else {
+                        ints.extend((start..end).flat_map(|i| channels.iter().map(move |c| to_i16(c[i]))));
+                    }
+                    let mut w16 = w.get_i16_writer(ints.len() as u32);
+                    for v in ints.iter() {
+                        w16.write_sample(*v);
                     }
                     w16.flush().map_err(werr)?;
                 }

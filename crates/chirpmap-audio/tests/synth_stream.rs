@@ -366,7 +366,7 @@ fn wav_bytes_written_in_blocks_equal_the_old_writer() {
     let syn = synthesize(&scene, &cfg).unwrap();
     // Values beyond full scale, NaN and ties test the rounding and clipping.
     let mut chans = syn.channels.clone();
-    chans[0][..8].copy_from_slice(&[
+    let edges = [
         1.5,
         -1.5,
         f32::NAN,
@@ -375,7 +375,13 @@ fn wav_bytes_written_in_blocks_equal_the_old_writer() {
         1.5 / 32_768.0,
         -2.5 / 32_768.0,
         1.0,
-    ]);
+        f32::INFINITY,
+        f32::NEG_INFINITY,
+        -1e6,
+        1e30,
+        -0.0,
+    ];
+    chans[0][..edges.len()].copy_from_slice(&edges);
     let refs: Vec<&[f32]> = chans.iter().map(Vec::as_slice).collect();
     for fmt in [SampleFormat::Int(16), SampleFormat::Int(24), SampleFormat::Int(32), SampleFormat::Float32] {
         let (a, b, c) = (dir.path().join("a.wav"), dir.path().join("b.wav"), dir.path().join("c.wav"));

@@ -83,8 +83,10 @@ impl Scratch {
     }
 
     fn write(&mut self, at: usize, y: &[f32], bytes: &mut Vec<u8>) -> Result<(), AudioError> {
-        bytes.clear();
-        bytes.extend(y.iter().flat_map(|v| v.to_le_bytes()));
+        bytes.resize(y.len() * 4, 0);
+        for (b, v) in bytes.chunks_exact_mut(4).zip(y) {
+            b.copy_from_slice(&v.to_le_bytes());
+        }
         self.seek(at)?;
         self.file.write_all(bytes).map_err(|e| self.io(e))
     }
