@@ -12,12 +12,13 @@
 //! facade's message; nothing here panics on user data.
 
 pub mod convert;
+pub mod rooms;
 
 use chirpmap::audio::Method;
 use chirpmap::{ChirpSpec, MapOptions, MapResult, Point, RangeGeometry};
 use convert::{SceneSource, error_text};
 use numpy::ndarray::Array2;
-use numpy::{IntoPyArray, PyReadonlyArray1, PyReadonlyArray2};
+use numpy::{IntoPyArray, PyArray1, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
@@ -307,6 +308,115 @@ fn echoes_from_recording<'py>(
     Ok((table(py, rows, cols)?, got.chirps, got.chirps_without_pose))
 }
 
+/// Every reflection of every chirp (`chirpmap range --echoes`, issue 10):
+/// a dict with the echoes for the map (`(n, 8)`, the echoes.csv columns),
+/// the columns `range --echoes` adds (`chirp`, `rank`, `path_delta_m`,
+/// `strength_db`, `plane`), the chirps' onsets, the clusters, the
+/// echogram `(m, 2)` and the predicted floor/ceiling echoes.
+#[pyfunction]
+#[pyo3(signature = (samples, sample_rate, speaker, mic, heights, floor_z, ceiling_z, input, calibration, max_echoes, echo_threshold_db, ringing_ms, echo_atom_ms, plane_tolerance, listener, f_start, f_end, duration, speed_of_sound, max_delta_d, sweep))]
+#[allow(clippy::too_many_arguments)]
+fn room_echoes<'py>(
+    py: Python<'py>,
+    samples: PyReadonlyArray1<'py, f32>,
+    sample_rate: f64,
+    speaker: [f64; 2],
+    mic: [f64; 2],
+    heights: Option<(f64, f64)>,
+    floor_z: Option<f64>,
+    ceiling_z: Option<f64>,
+    input: &str,
+    calibration: Option<PyReadonlyArray1<'py, f32>>,
+    max_echoes: usize,
+    echo_threshold_db: f64,
+    ringing_ms: f64,
+    echo_atom_ms: f64,
+    plane_tolerance: f64,
+    listener: u32,
+    f_start: f64,
+    f_end: f64,
+    duration: f64,
+    speed_of_sound: f64,
+    max_delta_d: Option<f64>,
+    sweep: &str,
+) -> PyResult<Bound<'py, PyDict>> {
+    let input: rooms::Input = input.parse().map_err(value_error)?;
+    let kind = rooms::parse_sweep(sweep).map_err(value_error)?;
+    let geom = rooms::geometry(speaker, mic, heights, floor_z, ceiling_z).map_err(value_error)?;
+    let opts = rooms::echo_options(max_echoes, echo_threshold_db, ringing_ms, echo_atom_ms, plane_tolerance)
+        .map_err(value_error)?;
+    let chirp = ChirpSpec {
+        f_start_hz: f_start,
+        f_end_hz: f_end,
+        duration_s: duration,
+        speed_of_sound_mps: speed_of_sound,
+        max_delta_d_m: max_delta_d,
+        kind,
+    };
+    let x = samples.as_slice().map_err(|_| value_error("samples must be a contiguous array"))?;
+    let cal = match &calibration {
+        Some(c) => Some(c.as_slice().map_err(|_| value_error("calibration must be a contiguous array"))?),
+        None => None,
+    };
+    let (report, echoes) = py
+        .detach(|| -> Result<_, String> {
+            let report = rooms::room_report(x, sample_rate, input, &chirp, &geom, opts, cal)?;
+            let echoes = report.map_echoes(&geom, listener).map_err(|e| error_text(&e))?;
+            Ok((report, echoes))
+        })
+        .map_err(value_error)?;
+    let d = PyDict::new(py);
+    let (rows, cols) = convert::echoes_to_rows(&echoes);
+    d.set_item("echoes", table(py, rows, cols)?)?;
+    let (chirps, ranks, path_delta_m, strength_db, planes) = rooms::room_columns(&report);
+    d.set_item("chirp", chirps.into_pyarray(py))?;
+    d.set_item("rank", ranks.into_pyarray(py))?;
+    d.set_item("path_delta_m", path_delta_m.into_pyarray(py))?;
+    d.set_item("strength_db", strength_db.into_pyarray(py))?;
+    d.set_item("plane", planes)?;
+    let onsets: Bound<'py, PyArray1<f64>> = report.chirp_onsets_s.into_pyarray(py);
+    d.set_item("chirp_onsets_s", onsets)?;
+    let clusters = PyList::empty(py);
+    for c in &report.clusters {
+        let row = PyDict::new(py);
+        row.set_item("path_delta_m", c.path_delta_m)?;
+        row.set_item("delta_d_m", c.delta_d_m)?;
+        row.set_item("strength_db", c.strength_db)?;
+        row.set_item("chirps", c.chirps)?;
+        row.set_item("plane", c.plane)?;
+        clusters.append(row)?;
+    }
+    d.set_item("clusters", clusters)?;
+    let gram: Vec<f64> = report.echogram.iter().flat_map(|&(pd, db)| [pd, db]).collect();
+    d.set_item("echogram", table(py, gram, 2)?)?;
+    let predicted = PyList::empty(py);
+    for &(plane, pd) in &report.predicted {
+        let row = PyDict::new(py);
+        row.set_item("plane", plane)?;
+        row.set_item("path_delta_m", pd)?;
+        predicted.append(row)?;
+    }
+    d.set_item("predicted", predicted)?;
+    d.set_item("min_delta_d_m", report.min_delta_d_m)?;
+    d.set_item("max_delta_d_m", report.max_delta_d_m)?;
+    d.set_item("calibrated", report.calibrated)?;
+    Ok(d)
+}
+
+/// The facade's defaults of `room_echoes`' keywords ([`chirpmap::EchoOptions::default`]),
+/// which the Python signature repeats (a test compares them).
+#[pyfunction]
+fn room_echo_defaults(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
+    let o = chirpmap::EchoOptions::default();
+    let d = PyDict::new(py);
+    d.set_item("max_echoes", o.max_echoes)?;
+    d.set_item("echo_threshold_db", o.threshold_db)?;
+    d.set_item("ringing_ms", o.ringing_s * 1e3)?;
+    d.set_item("echo_atom_ms", o.echo_atom_s * 1e3)?;
+    d.set_item("plane_tolerance", o.plane_tolerance_m)?;
+    Ok(d)
+}
+
 /// The compiled part of `chirpmap`; use the functions of the `chirpmap`
 /// package, which document their arguments and results.
 #[pymodule]
@@ -317,5 +427,7 @@ fn _chirpmap(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(synth, m)?)?;
     m.add_function(wrap_pyfunction!(range, m)?)?;
     m.add_function(wrap_pyfunction!(echoes_from_recording, m)?)?;
+    m.add_function(wrap_pyfunction!(room_echoes, m)?)?;
+    m.add_function(wrap_pyfunction!(room_echo_defaults, m)?)?;
     Ok(())
 }

@@ -16,7 +16,7 @@ bit, for the same inputs:
 >>> plt.imshow(run.grid, extent=run.extent, origin="lower")
 
 Functions: :func:`simulate`, :func:`map_echoes`, :func:`synth`, :func:`range`,
-:func:`echoes_from_recording`.
+:func:`echoes_from_recording`, :func:`room_echoes`.
 Arrays come back as numpy arrays that own Rust's buffers (no copies); every
 long step runs with the GIL released. Bad input raises :class:`ValueError`
 with the CLI's message.
@@ -38,11 +38,14 @@ __version__: str = _chirpmap.__version__
 __all__ = [
     "ECHO_COLUMNS",
     "MapResult",
+    "ROOM_ECHO_COLUMNS",
     "RecordingEchoes",
+    "RoomEchoes",
     "Simulation",
     "echoes_from_recording",
     "map_echoes",
     "range",
+    "room_echoes",
     "simulate",
     "synth",
 ]
@@ -472,6 +475,233 @@ def echoes_from_recording(
         pattern,
     )
     return RecordingEchoes(echoes, chirps, skipped)
+
+
+#: Columns of the echoes.csv ``chirpmap range --echoes`` writes, the order of
+#: :meth:`RoomEchoes.table`: the map's eight (:data:`ECHO_COLUMNS`), then the
+#: chirp's index, the echo's rank by delay within it (1 = earliest), the
+#: measured 3D path difference (m), the strength (dB re direct) and the plane
+#: label (``"floor"``, ``"ceiling"``, ``"floor?"`` or ``""``).
+ROOM_ECHO_COLUMNS: Tuple[str, ...] = ECHO_COLUMNS[:8] + (
+    "chirp",
+    "rank",
+    "path_delta_m",
+    "strength_db",
+    "plane",
+)
+
+
+@dataclass(frozen=True)
+class RoomEchoes:
+    """Every reflection of every chirp, as ``chirpmap range --echoes`` reports it.
+
+    One row per echo, by chirp then delay, in the rows of its echoes.csv.
+
+    Attributes:
+        echoes: ``(n, 8)`` float64 in the columns of echoes.csv
+            (:data:`ECHO_COLUMNS`): speaker and microphone in the map's plane,
+            ``delta_d`` (the horizontal path difference a vertical reflector
+            would give, m), ``weight`` (1, or 0 for a labelled floor or
+            ceiling echo, which stays out of the map), ``t`` (the chirp's
+            onset, s; 0 for an impulse response) and ``listener``. Ready for
+            :func:`map_echoes`.
+        chirp: ``(n,)`` int64, the chirp's index (from 0).
+        rank: ``(n,)`` int64, rank by delay within the chirp (1 = earliest).
+        path_delta_m: ``(n,)`` float64, the measured (3D) path difference (m).
+        strength_db: ``(n,)`` float64, amplitude re the direct sound (dB).
+        plane: ``(n,)`` str, ``"floor"``, ``"ceiling"``, ``"floor?"`` (the
+            floor guessed at z = 0) or ``""``.
+        chirp_onsets_s: ``(k,)`` float64, onsets of the chirps' direct
+            sound (s); ``[0.0]`` for an impulse response.
+        clusters: echoes found in at least half of the chirps, by path
+            difference: dicts ``path_delta_m, delta_d_m, strength_db`` (medians),
+            ``chirps`` and ``plane`` (None or a label), as in summary.json.
+        echogram: ``(m, 2)`` float64 ``path_delta_m, level_db``: the median
+            envelope over chirps re the direct peak (echogram.csv, unrounded).
+        predicted: the floor's and ceiling's predicted echoes, dicts
+            ``plane, path_delta_m`` (summary.json's ``predicted``).
+        min_delta_d_m: smallest path difference searched (m): the ringing
+            window, or a third of a millisecond with a calibration.
+        max_delta_d_m: largest path difference searched (m).
+        calibrated: whether a calibration gave the system response.
+    """
+
+    echoes: np.ndarray
+    chirp: np.ndarray
+    rank: np.ndarray
+    path_delta_m: np.ndarray
+    strength_db: np.ndarray
+    plane: np.ndarray
+    chirp_onsets_s: np.ndarray
+    clusters: List[Dict[str, Any]]
+    echogram: np.ndarray
+    predicted: List[Dict[str, Any]]
+    min_delta_d_m: float
+    max_delta_d_m: float
+    calibrated: bool
+
+    def table(self) -> np.ndarray:
+        """The rows of echoes.csv as a numpy structured array, one field per
+        column of :data:`ROOM_ECHO_COLUMNS` (``listener``, ``chirp`` and
+        ``rank`` int64, ``plane`` str, the others float64; unrounded)."""
+        n = len(self.echoes)
+        dtype = [(c, np.float64) for c in ECHO_COLUMNS[:7]] + [
+            ("listener", np.int64),
+            ("chirp", np.int64),
+            ("rank", np.int64),
+            ("path_delta_m", np.float64),
+            ("strength_db", np.float64),
+            ("plane", "U7"),
+        ]
+        out = np.zeros(n, dtype=dtype)
+        for j, c in enumerate(ECHO_COLUMNS[:8]):
+            out[c] = self.echoes[:, j]
+        for c in ROOM_ECHO_COLUMNS[8:]:
+            out[c] = getattr(self, c)
+        return out
+
+    def __repr__(self) -> str:
+        return (
+            f"RoomEchoes(echoes={len(self.echoes)}, chirps={len(self.chirp_onsets_s)}, "
+            f"clusters={[round(c['path_delta_m'], 3) for c in self.clusters]})"
+        )
+
+
+_INPUTS = ("recording", "rir")
+
+
+def room_echoes(
+    samples: Any,
+    sample_rate: float,
+    speaker: Sequence[float],
+    mic: Sequence[float],
+    *,
+    input: str = "recording",  # noqa: A002 - the CLI's --input
+    max_echoes: int = 20,
+    floor_z: Optional[float] = None,
+    ceiling_z: Optional[float] = None,
+    calibration: Any = None,
+    echo_threshold_db: float = -30.0,
+    ringing_ms: float = 2.0,
+    echo_atom_ms: float = 0.6,
+    plane_tolerance: float = 0.08,
+    f_start: float = 10000.0,
+    f_end: float = 200.0,
+    duration: float = 0.5,
+    speed_of_sound: float = 343.0,
+    max_delta_d: Optional[float] = None,
+    sweep: str = "linear",
+    channel: int = 0,
+    listener: Optional[int] = None,
+) -> RoomEchoes:
+    """Every reflection of every chirp in a room (issue 10, item 1).
+
+    The same as ``chirpmap range REC.wav --echoes K --speaker X,Y[,Z] --mic
+    X,Y[,Z]`` (with ``--input rir`` for an impulse response) on a WAV holding
+    these samples: the same echoes, clusters, echogram and predictions, bit
+    for bit (echoes.csv and echogram.csv round what these hold).
+
+    Per chirp the impulse response (matched filter for a linear sweep,
+    Farina's inverse filter for an exponential one), then matching pursuit
+    with the system response cut from the direct sound, or taken from
+    ``calibration``, so that the loudspeaker's ringing is not taken for an
+    echo. With heights, path differences are measured in 3D and projected
+    for the 2D map; echoes matching the floor's or ceiling's image source
+    are labelled and kept out of the map.
+
+    Args:
+        samples: 1-D samples, or 2-D ``(n_samples, n_channels)`` with
+            ``channel`` (converted to float32, as a WAV is read).
+        sample_rate: Hz.
+        speaker: speaker position ``(x, y)`` or ``(x, y, z)`` (m).
+        mic: microphone position ``(x, y)`` or ``(x, y, z)`` (m); heights
+            for both or for neither.
+        input: ``"recording"`` (chirps; the CLI's ``wav``) or ``"rir"`` (an
+            impulse response whose time zero is the emission; the chirp
+            arguments but ``speed_of_sound`` and ``max_delta_d`` are unused).
+        max_echoes: most echoes per chirp (1 to 1000): the strongest,
+            then ordered by delay.
+        floor_z: floor height (m), below speaker and mic (needs heights).
+        ceiling_z: ceiling height (m), above them (needs heights).
+        calibration: samples of the direct sound alone, the same kind of
+            input as ``samples`` at the same rate (1-D, or 2-D with
+            ``channel``): its response models the loudspeaker.
+        echo_threshold_db: weakest echo reported re the direct sound (dB, < 0).
+        ringing_ms: length of the loudspeaker's ringing after the direct
+            peak (ms); nothing closer is reported.
+        echo_atom_ms: length of the system response after its peak matched
+            to each echo (ms).
+        plane_tolerance: an echo within this of a predicted floor or ceiling
+            echo is labelled (m; the nearest one).
+        f_start, f_end, duration, speed_of_sound, max_delta_d: the chirp and
+            medium, as for :func:`range`. ``max_delta_d`` defaults to
+            min(60, a·T/2) for a recording, and to 60 m or the response's
+            length for an impulse response.
+        sweep: ``"linear"`` (the paper's), ``"exponential"`` or ``"hyperbolic"``.
+        channel: the column of 2-D ``samples`` (and ``calibration``).
+        listener: listener id of the echoes; default ``channel``.
+
+    Returns:
+        A :class:`RoomEchoes`.
+
+    Raises:
+        ValueError: bad input; the message names the argument, as the CLI's
+            names the flag.
+    """
+    if input not in _INPUTS:
+        raise ValueError(f"input: {input!r} is not an input kind (recording or rir)")
+    x = _channel(samples, channel)
+    cal = None if calibration is None else _channel(calibration, channel)
+    (sx, sy, sz) = _point_2or3("speaker", speaker)
+    (mx, my, mz) = _point_2or3("mic", mic)
+    if (sz is None) != (mz is None):
+        raise ValueError("speaker, mic: give heights for both (x, y, z), or for neither")
+    heights = None if sz is None else (sz, mz)
+    if isinstance(max_echoes, bool) or not isinstance(max_echoes, (int, np.integer)):
+        raise TypeError(f"max_echoes must be an int, not {type(max_echoes).__name__}")
+    if not 1 <= max_echoes <= 1000:
+        raise ValueError(f"max_echoes: must be in 1..=1000, got {max_echoes}")
+    lid = channel if listener is None else listener
+    if isinstance(lid, bool) or not isinstance(lid, (int, np.integer)):
+        raise TypeError(f"listener must be an int, not {type(lid).__name__}")
+    if not 0 <= lid <= 2**32 - 1:
+        raise ValueError(f"listener: must be between 0 and 2^32 - 1, got {lid}")
+    d = _chirpmap.room_echoes(
+        x,
+        float(sample_rate),
+        [sx, sy],
+        [mx, my],
+        heights,
+        None if floor_z is None else float(floor_z),
+        None if ceiling_z is None else float(ceiling_z),
+        input,
+        cal,
+        int(max_echoes),
+        float(echo_threshold_db),
+        float(ringing_ms),
+        float(echo_atom_ms),
+        float(plane_tolerance),
+        int(lid),
+        float(f_start),
+        float(f_end),
+        float(duration),
+        float(speed_of_sound),
+        None if max_delta_d is None else float(max_delta_d),
+        str(sweep),
+    )
+    d["plane"] = np.array(d["plane"], dtype="U7")
+    return RoomEchoes(**d)
+
+
+def _point_2or3(name: str, p: Sequence[float]) -> Tuple[float, float, Optional[float]]:
+    """`(x, y)` or `(x, y, z)`, checked as the CLI checks `X,Y[,Z]`."""
+    v = [float(c) for c in p]
+    if len(v) not in (2, 3):
+        raise ValueError(f"{name}: expected (x, y) or (x, y, z), got {len(v)} values")
+    for c in v:
+        if not (np.isfinite(c) and abs(c) <= _MAX_COORD_M):
+            raise ValueError(f"{name}: {c} must be finite and within ±{_MAX_COORD_M} m")
+    return v[0], v[1], (v[2] if len(v) == 3 else None)
 
 
 def _channel(samples: Any, channel: int) -> np.ndarray:

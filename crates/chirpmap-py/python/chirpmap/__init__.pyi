@@ -101,3 +101,52 @@ def echoes_from_recording(
     pattern: Optional[str] = None,
 ) -> RecordingEchoes:
     """Echoes of a moving listener's recording (chirpmap map --wav)."""
+
+ROOM_ECHO_COLUMNS: Tuple[str, ...]
+
+@dataclass(frozen=True)
+class RoomEchoes:
+    """Every reflection of every chirp (chirpmap range --echoes): echoes (n, 8) for the map, and per echo
+    chirp, rank, path_delta_m, strength_db, plane; the chirps' onsets, clusters, echogram (m, 2), predictions."""
+
+    echoes: npt.NDArray[np.float64]
+    chirp: npt.NDArray[np.int64]
+    rank: npt.NDArray[np.int64]
+    path_delta_m: npt.NDArray[np.float64]
+    strength_db: npt.NDArray[np.float64]
+    plane: npt.NDArray[np.str_]
+    chirp_onsets_s: npt.NDArray[np.float64]
+    clusters: List[Dict[str, Any]]
+    echogram: npt.NDArray[np.float64]
+    predicted: List[Dict[str, Any]]
+    min_delta_d_m: float
+    max_delta_d_m: float
+    calibrated: bool
+    def table(self) -> npt.NDArray[np.void]:
+        """The rows of echoes.csv as a structured array (fields: ROOM_ECHO_COLUMNS)."""
+
+def room_echoes(
+    samples: npt.ArrayLike,
+    sample_rate: float,
+    speaker: Sequence[float],
+    mic: Sequence[float],
+    *,
+    input: str = "recording",
+    max_echoes: int = 20,
+    floor_z: Optional[float] = None,
+    ceiling_z: Optional[float] = None,
+    calibration: Optional[npt.ArrayLike] = None,
+    echo_threshold_db: float = -30.0,
+    ringing_ms: float = 2.0,
+    echo_atom_ms: float = 0.6,
+    plane_tolerance: float = 0.08,
+    f_start: float = 10000.0,
+    f_end: float = 200.0,
+    duration: float = 0.5,
+    speed_of_sound: float = 343.0,
+    max_delta_d: Optional[float] = None,
+    sweep: str = "linear",
+    channel: int = 0,
+    listener: Optional[int] = None,
+) -> RoomEchoes:
+    """Every reflection of every chirp in a room (chirpmap range --echoes; input="rir": --input rir)."""

@@ -53,3 +53,27 @@ def echoes_from_recording(
     max_delta_d: Optional[float],
     pattern: Optional[str] = None,
 ) -> Tuple[npt.NDArray[np.float64], int, int]: ...
+def room_echoes(
+    samples: npt.NDArray[np.float32],
+    sample_rate: float,
+    speaker: List[float],
+    mic: List[float],
+    heights: Optional[Tuple[float, float]],
+    floor_z: Optional[float],
+    ceiling_z: Optional[float],
+    input: str,
+    calibration: Optional[npt.NDArray[np.float32]],
+    max_echoes: int,
+    echo_threshold_db: float,
+    ringing_ms: float,
+    echo_atom_ms: float,
+    plane_tolerance: float,
+    listener: int,
+    f_start: float,
+    f_end: float,
+    duration: float,
+    speed_of_sound: float,
+    max_delta_d: Optional[float],
+    sweep: str,
+) -> Dict[str, Any]: ...
+def room_echo_defaults() -> Dict[str, Any]: ...
