@@ -72,19 +72,121 @@ fn rho_n(ctx: &Ctx, k: usize, n: Point, origin: Point) -> f64 {
     far_offset(e.semi_major_m * e.semi_major_m, e.semi_minor_m * e.semi_minor_m, nu, nv, n.dot(e.center - origin))
 }
 
+/// Per-echo constants of the far tangent offset, structure of arrays: the
+/// same arithmetic as [`rho_n`] (bit for bit) in loops the compiler can
+/// vectorise.
+pub(crate) struct Tangents {
+    cos_t: Vec<f64>,
+    sin_t: Vec<f64>,
+    a2: Vec<f64>,
+    b2: Vec<f64>,
+    cx: Vec<f64>,
+    cy: Vec<f64>,
+    /// Band half-width kσ (m).
+    tau: Vec<f64>,
+    /// σ (m).
+    sigma: Vec<f64>,
+    /// Least-squares weight 1/σ².
+    w: Vec<f64>,
+    /// Bound (m/rad) on |dρ/dθ|: |c − origin| + a (the offset's derivative
+    /// is the tangency point's component along the line, |touch − origin|).
+    lip: Vec<f64>,
+}
+
+impl Tangents {
+    fn new(ctx: &Ctx, origin: Point) -> Self {
+        let n = ctx.preps.len();
+        let mut t = Tangents {
+            cos_t: Vec::with_capacity(n),
+            sin_t: Vec::with_capacity(n),
+            a2: Vec::with_capacity(n),
+            b2: Vec::with_capacity(n),
+            cx: Vec::with_capacity(n),
+            cy: Vec::with_capacity(n),
+            tau: Vec::with_capacity(n),
+            sigma: Vec::with_capacity(n),
+            w: Vec::with_capacity(n),
+            lip: Vec::with_capacity(n),
+        };
+        for (k, p) in ctx.preps.iter().enumerate() {
+            let e = &p.ellipse;
+            let c = e.center - origin;
+            t.cos_t.push(e.cos_t);
+            t.sin_t.push(e.sin_t);
+            t.a2.push(e.semi_major_m * e.semi_major_m);
+            t.b2.push(e.semi_minor_m * e.semi_minor_m);
+            t.cx.push(c.x);
+            t.cy.push(c.y);
+            t.tau.push(tau(ctx, k));
+            t.sigma.push(p.sigma_m);
+            t.w.push(1.0 / (p.sigma_m * p.sigma_m));
+            t.lip.push(c.x.hypot(c.y) + e.semi_major_m);
+        }
+        t
+    }
+    /// Far tangent offset of echo `k` for the unit normal `n` (as [`rho_n`]).
+    #[inline]
+    fn offset(&self, k: usize, n: Point) -> f64 {
+        let (c, s) = (self.cos_t[k], self.sin_t[k]);
+        let nu = n.x * c + n.y * s;
+        let nv = -n.x * s + n.y * c;
+        far_offset(self.a2[k], self.b2[k], nu, nv, n.x * self.cx[k] + n.y * self.cy[k])
+    }
+    fn len(&self) -> usize {
+        self.a2.len()
+    }
+    /// Far tangent offset of echo `k` and its derivative in the normal
+    /// angle, `n⊥·c + (b² − a²)(n·u)(n·v)/h`.
+    #[inline]
+    fn offset_slope(&self, k: usize, n: Point) -> (f64, f64) {
+        let (c, s) = (self.cos_t[k], self.sin_t[k]);
+        let nu = n.x * c + n.y * s;
+        let nv = -n.x * s + n.y * c;
+        let (a2, b2) = (self.a2[k], self.b2[k]);
+        let h = (a2 * nu * nu + b2 * nv * nv).sqrt();
+        let rho = n.x * self.cx[k] + n.y * self.cy[k] + h;
+        let dc = -n.y * self.cx[k] + n.x * self.cy[k];
+        let slope = if h > 0.0 { dc + (b2 - a2) * nu * nv / h } else { dc };
+        (rho, slope)
+    }
+    /// Far tangent offsets of every echo for the unit normal `n`.
+    fn offsets(&self, n: Point, out: &mut [f64]) {
+        let it = self.cos_t.iter().zip(&self.sin_t).zip(self.a2.iter().zip(&self.b2)).zip(self.cx.iter().zip(&self.cy));
+        for (o, (((&c, &s), (&a2, &b2)), (&cx, &cy))) in out.iter_mut().zip(it) {
+            let nu = n.x * c + n.y * s;
+            let nv = -n.x * s + n.y * c;
+            *o = far_offset(a2, b2, nu, nv, n.x * cx + n.y * cy);
+        }
+    }
+}
+
+/// `x.ceil()` for finite `x` without a libm call (the default x86-64 target
+/// has no rounding instruction); exact, saturating beyond ±2⁶³.
+#[inline]
+fn ceil_fast(x: f64) -> f64 {
+    let t = x as i64 as f64;
+    if t < x { t + 1.0 } else { t }
+}
+
+/// `x.floor()` for finite `x`, as [`ceil_fast`].
+#[inline]
+fn floor_fast(x: f64) -> f64 {
+    let t = x as i64 as f64;
+    if t > x { t - 1.0 } else { t }
+}
+
 fn median(v: &mut [f64]) -> f64 {
     let n = v.len();
     let (_, m, _) = v.select_nth_unstable_by(n / 2, f64::total_cmp);
     *m
 }
 
-/// Densest offset at angle `theta` for `set`: the window of `width` (2τ,
-/// τ = kσ with σ the set's median) holding the most tangent offsets, and its
-/// mean. Returns `(count, mean)`.
-fn densest(ctx: &Ctx, set: &[usize], theta: f64, origin: Point, width: f64, buf: &mut Vec<f64>) -> (usize, f64) {
+/// Densest offset among the tangent offsets `vals` (any order): the window
+/// of `width` (2τ, τ = kσ with σ the set's median) holding the most offsets,
+/// and its mean. `buf` is scratch. Returns `(count, mean)`.
+fn densest(vals: &[f64], width: f64, buf: &mut Vec<f64>) -> (usize, f64) {
     buf.clear();
-    let n = Point::from_angle(theta);
-    buf.extend(set.iter().map(|&k| rho_n(ctx, k, n, origin)));
+    buf.extend_from_slice(vals);
     buf.sort_unstable_by(f64::total_cmp);
     let (mut best, mut best_lo, mut lo) = (0usize, 0usize, 0usize);
     for hi in 0..buf.len() {
@@ -100,33 +202,86 @@ fn densest(ctx: &Ctx, set: &[usize], theta: f64, origin: Point, width: f64, buf:
     (best, mean)
 }
 
-/// Golden-section minimum of `f` on `[lo, hi]`.
-fn golden(mut lo: f64, mut hi: f64, mut f: impl FnMut(f64) -> f64) -> f64 {
-    let g = 0.5 * (5f64.sqrt() - 1.0);
-    let (mut x1, mut x2) = (hi - g * (hi - lo), lo + g * (hi - lo));
-    let (mut f1, mut f2) = (f(x1), f(x2));
-    for _ in 0..40 {
-        if f1 <= f2 {
-            hi = x2;
-            x2 = x1;
-            f2 = f1;
-            x1 = hi - g * (hi - lo);
-            f1 = f(x1);
-        } else {
-            lo = x1;
-            x1 = x2;
-            f1 = f2;
-            x2 = lo + g * (hi - lo);
-            f2 = f(x2);
+/// The angle in `[lo, hi]` minimising the weighted variance of the tangent
+/// offsets of `set` (weighted least squares for the line), by Gauss–Newton
+/// from `start`: with offsets linear in the angle about θ, r_k + r'_k·Δ, the
+/// variance is least at Δ = −Cov(r, r′)/Var(r′); its fixed point is where
+/// the variance's derivative 2·Cov(r, r′) vanishes.
+fn min_spread(tan: &Tangents, set: &[usize], lo: f64, hi: f64, start: f64) -> f64 {
+    let mut theta = start.clamp(lo, hi);
+    for _ in 0..8 {
+        let n = Point::from_angle(theta);
+        let (mut sw, mut sr, mut sd, mut srd, mut sdd) = (0.0, 0.0, 0.0, 0.0, 0.0);
+        for &k in set {
+            let (r, d) = tan.offset_slope(k, n);
+            let w = tan.w[k];
+            sw += w;
+            sr += w * r;
+            sd += w * d;
+            srd += w * r * d;
+            sdd += w * d * d;
+        }
+        let (mr, md) = (sr / sw, sd / sw);
+        let var_d = sdd / sw - md * md;
+        if var_d.is_nan() || var_d <= 0.0 {
+            break;
+        }
+        let step = -(srd / sw - mr * md) / var_d;
+        let next = (theta + step).clamp(lo, hi);
+        let moved = (next - theta).abs();
+        theta = next;
+        if moved <= 1e-12 {
+            break;
         }
     }
-    0.5 * (lo + hi)
+    theta
 }
 
-/// Echoes whose far tangent at `theta` lies within their band of `rho`.
-fn gather(ctx: &Ctx, theta: f64, rho: f64, origin: Point, extra: f64) -> Vec<usize> {
-    let n = Point::from_angle(theta);
-    (0..ctx.preps.len()).filter(|&k| (rho_n(ctx, k, n, origin) - rho).abs() <= tau(ctx, k) + extra).collect()
+/// Echoes whose far tangent at `theta` lies within their band of `rho`
+/// (plus `extra`), in index order; `buf` is scratch for the offsets.
+fn gather(tan: &Tangents, theta: f64, rho: f64, extra: f64, buf: &mut Vec<f64>) -> Vec<usize> {
+    buf.resize(tan.len(), 0.0);
+    tan.offsets(Point::from_angle(theta), buf);
+    buf.iter()
+        .zip(&tan.tau)
+        .enumerate()
+        .filter(|(_, (r, t))| (**r - rho).abs() <= **t + extra)
+        .map(|(k, _)| k)
+        .collect()
+}
+
+/// Gathers near one line: every echo that [`gather`] can return for an
+/// angle within `d_theta` of `theta` and an offset within `d_rho` of `rho`
+/// (with `extra` ≤ `max_extra`), since an offset moves by at most
+/// `lip`·|Δθ|. Later gathers inside that box test only these echoes and
+/// return exactly what a full gather would.
+struct NearSet {
+    theta: f64,
+    rho: f64,
+    d_theta: f64,
+    d_rho: f64,
+    max_extra: f64,
+    ks: Vec<usize>,
+}
+
+impl NearSet {
+    fn new(tan: &Tangents, theta: f64, rho: f64, d_theta: f64, d_rho: f64, max_extra: f64, buf: &mut Vec<f64>) -> Self {
+        buf.resize(tan.len(), 0.0);
+        tan.offsets(Point::from_angle(theta), buf);
+        // 1e-9 m of slack for rounding in the offsets.
+        let ks = (0..tan.len())
+            .filter(|&k| (buf[k] - rho).abs() <= tan.tau[k] + max_extra + tan.lip[k] * d_theta + d_rho + 1e-9)
+            .collect();
+        NearSet { theta, rho, d_theta, d_rho, max_extra, ks }
+    }
+    fn gather(&self, tan: &Tangents, theta: f64, rho: f64, extra: f64, buf: &mut Vec<f64>) -> Vec<usize> {
+        let inside = (theta - self.theta).abs() <= self.d_theta && (rho - self.rho).abs() <= self.d_rho;
+        if !inside || extra > self.max_extra {
+            return gather(tan, theta, rho, extra, buf);
+        }
+        let n = Point::from_angle(theta);
+        self.ks.iter().copied().filter(|&k| (tan.offset(k, n) - rho).abs() <= tan.tau[k] + extra).collect()
+    }
 }
 
 /// Keeps, per measurement, the echo closest to the line, and only
@@ -182,12 +337,12 @@ fn segment_of(theta: f64, rho: f64, origin: Point, touches: &[(usize, Point)]) -
 }
 
 /// Weighted variance of the tangent offsets of `set` at `theta`, and their mean.
-fn spread(ctx: &Ctx, set: &[usize], theta: f64, origin: Point) -> (f64, f64) {
+fn spread(tan: &Tangents, set: &[usize], theta: f64) -> (f64, f64) {
     let (mut sw, mut swr, mut swr2) = (0.0, 0.0, 0.0);
     let n = Point::from_angle(theta);
     for &k in set {
-        let r = rho_n(ctx, k, n, origin);
-        let w = 1.0 / (ctx.preps[k].sigma_m * ctx.preps[k].sigma_m);
+        let r = tan.offset(k, n);
+        let w = tan.w[k];
         sw += w;
         swr += w * r;
         swr2 += w * r * r;
@@ -199,10 +354,12 @@ fn spread(ctx: &Ctx, set: &[usize], theta: f64, origin: Point) -> (f64, f64) {
 /// Refines a Hough peak: first the angle within the bin where the most
 /// tangent offsets fall in one band (a scan, since away from the true angle
 /// a long wall's offsets fan out by length × angle error), then weighted
-/// least squares (golden section on the offsets' variance, offset = their
-/// mean), re-gathering the echoes within their band each round.
-fn refine(ctx: &Ctx, theta0: f64, rho0: f64, origin: Point, bin: f64, rho_bin: f64) -> Option<Cand> {
+/// least squares (Gauss–Newton on the offsets' variance, [`min_spread`],
+/// offset = their mean), re-gathering the echoes within their band each
+/// round (from a [`NearSet`], which returns what a full gather would).
+fn refine(ctx: &Ctx, tan: &Tangents, theta0: f64, rho0: f64, origin: Point, bin: f64, rho_bin: f64) -> Option<Cand> {
     let mut buf = Vec::new();
+    let mut vals = Vec::new();
     // The scan's resolution: 4 bins in 40 steps, searched coarse to fine (21
     // angles a fifth of a bin apart, then the 2 between them about the best
     // one): 23 scores instead of 41. (A coarser first pass, 9 angles, found
@@ -217,21 +374,24 @@ fn refine(ctx: &Ctx, theta0: f64, rho0: f64, origin: Point, bin: f64, rho_bin: f
     // best angle sits on the scan's edge (short walls vote over a plateau
     // several bins wide, so the peak bin can be off).
     for _ in 0..3 {
-        let set0 = gather(ctx, theta, rho, origin, 2.0 * rho_bin);
+        let set0 = gather(tan, theta, rho, 2.0 * rho_bin, &mut buf);
         if set0.len() < 2 {
             return None;
         }
-        let mut sig: Vec<f64> = set0.iter().map(|&k| ctx.preps[k].sigma_m).collect();
+        let mut sig: Vec<f64> = set0.iter().map(|&k| tan.sigma[k]).collect();
         let width = 2.0 * ctx.params.band_sigmas * median(&mut sig);
         let lo = theta - 2.0 * bin;
         let mut score_at = |s: usize| -> (f64, f64) {
             let th = lo + step * s as f64;
-            let (_, centre) = densest(ctx, &set0, th, origin, width, &mut buf);
             let n = Point::from_angle(th);
+            vals.clear();
+            vals.extend(set0.iter().map(|&k| tan.offset(k, n)));
+            let (_, centre) = densest(&vals, width, &mut buf);
             let score: f64 = set0
                 .iter()
-                .map(|&k| {
-                    let x = (rho_n(ctx, k, n, origin) - centre) / ctx.preps[k].sigma_m;
+                .zip(&vals)
+                .map(|(&k, &r)| {
+                    let x = (r - centre) / tan.sigma[k];
                     (-0.5 * x * x).exp()
                 })
                 .sum();
@@ -262,18 +422,17 @@ fn refine(ctx: &Ctx, theta0: f64, rho0: f64, origin: Point, bin: f64, rho_bin: f
         }
     }
     let mut span = 2.0 * step;
-    let mut set = Vec::new();
+    let near = NearSet::new(tan, theta, rho, 4.0 * step, 2.0 * rho_bin, 0.0, &mut buf);
     for _ in 0..4 {
-        set = gather(ctx, theta, rho, origin, 0.0);
+        let set = near.gather(tan, theta, rho, 0.0, &mut buf);
         if set.len() < 2 {
             return None;
         }
-        theta = golden(theta - span, theta + span, |th| spread(ctx, &set, th, origin).0);
-        rho = spread(ctx, &set, theta, origin).1;
+        theta = min_spread(tan, &set, theta - span, theta + span, theta);
+        rho = spread(tan, &set, theta).1;
         span *= 0.5;
     }
-    let _ = &set;
-    let set = gather(ctx, theta, rho, origin, 0.0);
+    let set = near.gather(tan, theta, rho, 0.0, &mut buf);
     let theta = theta.rem_euclid(TAU);
     let touches = touches_in_runs(ctx, &set, theta, rho, origin);
     let (p0, p1) = segment_of(theta, rho, origin, &touches);
@@ -496,25 +655,31 @@ pub(crate) fn find_lines(ctx: &Ctx) -> LinesResult {
     // Triangular votes (1 at the tangent offset, 0 at the band's edge plus a
     // bin) so that the angle where the offsets agree best is a strict peak
     // rather than one end of a plateau of equal counts.
+    let tan = Tangents::new(ctx, origin);
     let mut acc = vec![0f32; k_bins * n_rho];
-    for (k, prep) in ctx.preps.iter().enumerate() {
-        let e = &prep.ellipse;
-        let (a2, b2) = (e.semi_major_m * e.semi_major_m, e.semi_minor_m * e.semi_minor_m);
-        let c = e.center - origin;
-        let half = tau(ctx, k) + rho_bin;
-        let inv_half = 1.0 / half;
-        for (t, &(nx, ny)) in trig.iter().enumerate() {
-            let nu = nx * e.cos_t + ny * e.sin_t;
-            let nv = -nx * e.sin_t + ny * e.cos_t;
-            let rho = far_offset(a2, b2, nu, nv, nx * c.x + ny * c.y);
-            let lo = ((rho - half + r_max) / rho_bin).ceil().max(0.0);
-            let hi = ((rho + half + r_max) / rho_bin).floor().min(n_rho as f64 - 1.0);
+    let half: Vec<f64> = (0..tan.len()).map(|k| tau(ctx, k) + rho_bin).collect();
+    let inv_half: Vec<f64> = half.iter().map(|h| 1.0 / h).collect();
+    let mut rho_buf = vec![0.0; tan.len()];
+    let window = half.iter().map(|h| (2.0 * h / rho_bin) as usize + 2).max().unwrap_or(1);
+    // Angle by angle (each echo's votes reach a cell in echo order either
+    // way): one accumulator row stays in cache, and the offsets of all
+    // echoes at one angle are a straight, vectorisable loop.
+    for (t, &(nx, ny)) in trig.iter().enumerate() {
+        tan.offsets(Point::new(nx, ny), &mut rho_buf);
+        let row = &mut acc[t * n_rho..(t + 1) * n_rho];
+        for ((&rho, &half), &inv_half) in rho_buf.iter().zip(&half).zip(&inv_half) {
+            let lo = ceil_fast((rho - half + r_max) / rho_bin).max(0.0);
+            let hi = floor_fast((rho + half + r_max) / rho_bin).min(n_rho as f64 - 1.0);
             if lo > hi {
                 continue;
             }
-            let row = &mut acc[t * n_rho..(t + 1) * n_rho];
             let first = lo as usize;
-            for (i, v) in row[first..=hi as usize].iter_mut().enumerate() {
+            // A fixed-length window (cells past `hi` get a weight of exactly
+            // 0 or, by rounding, far below one f32 ulp of any peak) avoids a
+            // data-dependent loop length.
+            let end = (first + window).min(n_rho);
+            let _ = hi;
+            for (i, v) in row[first..end].iter_mut().enumerate() {
                 let d = ((first + i) as f64 * rho_bin - r_max - rho).abs();
                 *v += (1.0 - d * inv_half).max(0.0) as f32;
             }
@@ -569,7 +734,7 @@ pub(crate) fn find_lines(ctx: &Ctx) -> LinesResult {
         if near {
             continue;
         }
-        if let Some(c) = refine(ctx, theta, rho, origin, bin, rho_bin) {
+        if let Some(c) = refine(ctx, &tan, theta, rho, origin, bin, rho_bin) {
             refined.push(c);
         }
     }
