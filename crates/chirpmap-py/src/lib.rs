@@ -10,6 +10,10 @@
 //! interpreter detached (`Python::detach`, pyo3 ≥ 0.26), so other Python
 //! threads run meanwhile. Every failure is a `ValueError` carrying the
 //! facade's message; nothing here panics on user data.
+//!
+//! `room_echoes` (issue 10, "every reflection") is `chirpmap range
+//! --echoes`; its plain-Rust half, which assembles the facade's inputs as
+//! the CLI does, is [`rooms`].
 
 pub mod convert;
 pub mod rooms;
