@@ -14,7 +14,7 @@
 
 use crate::detect::{ChirpTemplate, Detection, MIN_NCC, MIN_PEAK_RATIO};
 use crate::error::AudioError;
-use crate::filter::{SegmentFilter, Sos};
+use crate::filter::{Biquad, Sos};
 use crate::spectrum::FftCache;
 use chirpmap_core::Sweep;
 use rustfft::num_complex::Complex32;
@@ -43,28 +43,22 @@ impl BlockSource for crate::wav::WavStream {
     }
 }
 
-/// Kept for callers of the former checkpointed filter: the segmented
-/// high-pass ([`SegmentFilter`]) restarts at any segment without a
-/// recorded state, so [`Filtered::checkpoints`] stays empty.
+/// The filter's state before one block: (sample index, state per section).
 pub type Checkpoint = (usize, Vec<(f64, f64)>);
 
-/// A [`BlockSource`] high-passed by [`SegmentFilter`]: the same samples,
-/// bit for bit, as [`Sos::filter_in_place`] on the whole signal, whatever
-/// the blocks; it moves forward to any segment start without reading the
-/// samples between (when its source can seek).
+/// A [`BlockSource`] high-passed by a cascade of biquads whose state is
+/// carried across blocks: the same arithmetic, in the same order, as
+/// [`Sos::filter_in_place`] on the whole signal, so the same samples.
 #[derive(Debug)]
 pub struct Filtered<S> {
     inner: S,
-    sos: Sos,
-    filter: SegmentFilter,
+    sections: Vec<Biquad>,
+    state: Vec<(f64, f64)>,
     /// Whether any input sample (before filtering) was not zero.
     pub any_nonzero_input: bool,
-    /// Absolute index of the next sample served.
     pos: usize,
-    pending: Vec<f32>,
-    served: usize,
-    eof: bool,
-    /// Always empty (see [`Checkpoint`]).
+    /// The state before every block read from the start (recorded on the
+    /// first read through), so that a second read can start mid-stream.
     pub checkpoints: Vec<Checkpoint>,
 }
 
@@ -73,21 +67,17 @@ impl<S: BlockSource> Filtered<S> {
     pub fn new(inner: S, sos: &Sos) -> Self {
         Self {
             inner,
-            sos: sos.clone(),
-            filter: SegmentFilter::new(sos),
+            sections: sos.sections.clone(),
+            state: vec![(0.0, 0.0); sos.sections.len()],
             any_nonzero_input: false,
             pos: 0,
-            pending: Vec::new(),
-            served: 0,
-            eof: false,
             checkpoints: Vec::new(),
         }
     }
-    /// The same as [`Filtered::new`] (the segmented filter needs no
-    /// recorded states; `checkpoints` is ignored).
+    /// `inner` filtered from the states recorded by a previous read
+    /// through the same samples (see [`Filtered::checkpoints`]).
     pub fn resume(inner: S, sos: &Sos, checkpoints: Vec<Checkpoint>) -> Self {
-        let _ = checkpoints;
-        Self::new(inner, sos)
+        Self { checkpoints, ..Self::new(inner, sos) }
     }
     /// The unfiltered source.
     pub fn inner(&self) -> &S {
@@ -97,45 +87,66 @@ impl<S: BlockSource> Filtered<S> {
 
 impl<S: BlockSource> BlockSource for Filtered<S> {
     fn read(&mut self, out: &mut Vec<f32>, max: usize) -> Result<usize, AudioError> {
-        loop {
-            if self.served < self.pending.len() {
-                let n = max.min(self.pending.len() - self.served);
-                out.extend_from_slice(&self.pending[self.served..self.served + n]);
-                self.served += n;
-                self.pos += n;
-                return Ok(n);
-            }
-            if self.eof || max == 0 {
-                return Ok(0);
-            }
-            self.pending.clear();
-            self.served = 0;
-            let raw = self.filter.raw_buffer();
-            let start = raw.len();
-            let got = self.inner.read(raw, BLOCK)?;
-            if !self.any_nonzero_input {
-                self.any_nonzero_input = raw[start..].iter().any(|v| *v != 0.0);
-            }
-            self.eof = got == 0;
-            self.filter.pull(&mut self.pending, self.eof);
+        if self.checkpoints.last().is_none_or(|c| c.0 < self.pos) {
+            self.checkpoints.push((self.pos, self.state.clone()));
         }
+        let start = out.len();
+        let n = self.inner.read(out, max)?;
+        self.pos += n;
+        let block = &mut out[start..];
+        if !self.any_nonzero_input {
+            self.any_nonzero_input = block.iter().any(|v| *v != 0.0);
+        }
+        if let ([s1, s2], [st1, st2]) = (self.sections.as_slice(), self.state.as_mut_slice()) {
+            // Two sections (the paper's order-4 high-pass) interleaved per
+            // sample: the same operations as section after section, with the
+            // two recursions overlapping in the processor.
+            let ([b0, b1, b2], [_, a1, a2]) = (s1.b, s1.a);
+            let ([c0, c1, c2], [_, d1, d2]) = (s2.b, s2.a);
+            let ((mut z1, mut z2), (mut w1, mut w2)) = (*st1, *st2);
+            for v in block.iter_mut() {
+                let xi = f64::from(*v);
+                let y = b0 * xi + z1;
+                z1 = b1 * xi - a1 * y + z2;
+                z2 = b2 * xi - a2 * y;
+                let u = f64::from(y as f32);
+                let y2 = c0 * u + w1;
+                w1 = c1 * u - d1 * y2 + w2;
+                w2 = c2 * u - d2 * y2;
+                *v = y2 as f32;
+            }
+            (*st1, *st2) = ((z1, z2), (w1, w2));
+            return Ok(n);
+        }
+        for (s, st) in self.sections.iter().zip(self.state.iter_mut()) {
+            let [b0, b1, b2] = s.b;
+            let [_, a1, a2] = s.a;
+            let (mut z1, mut z2) = *st;
+            for v in block.iter_mut() {
+                let xi = f64::from(*v);
+                let y = b0 * xi + z1;
+                z1 = b1 * xi - a1 * y + z2;
+                z2 = b2 * xi - a2 * y;
+                *v = y as f32;
+            }
+            *st = (z1, z2);
+        }
+        Ok(n)
     }
 
     fn seek_before(&mut self, pos: usize) -> Result<Option<usize>, AudioError> {
-        let (filter, at, raw0) = SegmentFilter::starting_at(&self.sos, pos);
-        if at <= self.pos {
+        let i = self.checkpoints.partition_point(|c| c.0 <= pos);
+        let Some((at, state)) = i.checked_sub(1).and_then(|i| self.checkpoints.get(i)) else { return Ok(None) };
+        if *at <= self.pos {
             return Ok(None);
         }
-        let Some(got) = self.inner.seek_before(raw0)? else { return Ok(None) };
-        if got != raw0 {
+        let Some(got) = self.inner.seek_before(*at)? else { return Ok(None) };
+        if got != *at {
             return Ok(None);
         }
-        self.filter = filter;
-        self.pending.clear();
-        self.served = 0;
-        self.eof = false;
-        self.pos = at;
-        Ok(Some(at))
+        self.state.clone_from(state);
+        self.pos = *at;
+        Ok(Some(*at))
     }
 }
 

@@ -291,6 +291,7 @@ impl RangeReport {
             return Err(Error::Invalid(format!("channel {channel} is silent (every sample is zero){hint}")));
         }
         let clipped = src.inner().clipped_samples();
+        let checkpoints = std::mem::take(&mut src.checkpoints);
         let scan = match scanned {
             Ok(s) => s,
             Err(ScanError::MedianLost) => return Ok(None),
@@ -307,7 +308,7 @@ impl RangeReport {
         type State = (Vec<Vec<Option<chirpmap_audio::Estimate>>>, usize, Vec<f32>, usize);
         let (dets, (estimates, _, window, window_start)) = visit_chirps(
             &scan,
-            || Ok(Filtered::new(open()?, &sos)),
+            || Ok(Filtered::resume(open()?, &sos, checkpoints.clone())),
             before,
             after,
             |onsets: &[usize]| -> State { (Vec::with_capacity(onsets.len()), onsets.len() / 2, Vec::new(), 0) },
