@@ -50,6 +50,8 @@ def main():
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--rows", default="map,range,synth", help="comma-separated subset of map,range,synth")
     p.add_argument("--chirps", type=int, default=300, help="chirps of the range/synth recording (2 s each)")
+    p.add_argument("--baseline", help="another chirpmap binary (e.g. an older build) timed in the same "
+                   "interleaved range runs; its row and its speed-up are printed too")
     args = p.parse_args()
     rows = set(args.rows.split(","))
     if not rows <= {"map", "range", "synth"}:
@@ -60,6 +62,11 @@ def main():
         pinned = os.path.join(tmp, "chirpmap")
         shutil.copy2(args.chirpmap, pinned)
         args.chirpmap = pinned
+        args.baseline_name = args.baseline and os.path.basename(args.baseline)
+        if args.baseline:
+            base = os.path.join(tmp, "chirpmap-baseline")
+            shutil.copy2(args.baseline, base)
+            args.baseline = base
         if "map" in rows:
             bench_map(args, tmp)
         if rows & {"range", "synth"}:
@@ -133,6 +140,7 @@ def bench_audio(args, tmp, rows):
             "--duration", "1"]
     methods = ["gap", "matched"]
     times = {k: [] for k in ["range_c_gap", "range_c_matched", "range_py_gap", "range_py_matched",
+                             "range_b_gap", "range_b_matched",
                              "synth_c", "synth_py"]}
     medians = {}
     for rep in range(args.reps):
@@ -145,6 +153,11 @@ def bench_audio(args, tmp, rows):
                 t, r = timed([py, os.path.join(HERE, "range_scipy.py"), wav, "--method", m], capture=True)
                 times[f"range_py_{m}"].append(t)
                 medians[("scipy", m)] = json.loads(r)["delta_d_median"]
+                if args.baseline:
+                    out = os.path.join(tmp, f"range-base-{m}-{rep}")
+                    t, _ = timed([args.baseline, "range", wav, *geom, "--method", m, "--out", out, "--no-progress"])
+                    times[f"range_b_{m}"].append(t)
+                    medians[("baseline", m)] = json.load(open(os.path.join(out, "summary.json")))["delta_d_median"]
         if "synth" in rows:
             t, _ = timed([args.chirpmap, "synth", scene_path, "--out", os.path.join(tmp, f"synth-c-{rep}.wav")])
             times["synth_c"].append(t)
@@ -166,14 +179,20 @@ def bench_audio(args, tmp, rows):
               f"| scipy script of the same pipeline (range_scipy.py) | {med['range_py_gap']:.3f} / "
               f"{med['range_py_matched']:.3f} s | {med['range_py_gap'] / med['range_c_gap']:.1f}x / "
               f"{med['range_py_matched'] / med['range_c_matched']:.1f}x |")
+        if args.baseline:
+            print(f"| range {minutes:g} min, gap / matched, baseline ({args.baseline_name}) "
+                  f"| {med['range_b_gap']:.3f} / {med['range_b_matched']:.3f} s | (same scipy runs) | "
+                  f"{med['range_py_gap']:.3f} / {med['range_py_matched']:.3f} s | "
+                  f"{med['range_py_gap'] / med['range_b_gap']:.1f}x / {med['range_py_matched'] / med['range_b_matched']:.1f}x |")
     if "synth" in rows:
         print(f"| synth {minutes:g} min, static listener | {med['synth_c']:.3f} s | pyroomacoustics "
               f"{pra_version(py)}, first-order image sources (synth_pra.py) | {med['synth_py']:.3f} s | "
               f"{med['synth_py'] / med['synth_c']:.1f}x |")
     print()
     if "range" in rows:
+        who_all = ("chirpmap", "scipy", "baseline") if args.baseline else ("chirpmap", "scipy")
         print("median delta_d (m): " + ", ".join(f"{who} {m} {medians[(who, m)]:.4f}" for m in methods
-                                                 for who in ("chirpmap", "scipy")) + f"; geometry {truth:.4f}")
+                                                 for who in who_all) + f"; geometry {truth:.4f}")
     if "synth" in rows:
         # The peer's recording, ranged by chirpmap: its content must match the geometry.
         out = os.path.join(tmp, "range-pra")
