@@ -181,16 +181,13 @@ fn median(v: &mut [f64]) -> f64 {
     *m
 }
 
-/// Densest offset among the tangent offsets `vals` (any order): the window
-/// of `width` (2τ, τ = kσ with σ the set's median) holding the most offsets,
-/// and its mean. `buf` is scratch. Returns `(count, mean)`.
-fn densest(vals: &[f64], width: f64, buf: &mut Vec<f64>) -> (usize, f64) {
-    buf.clear();
-    buf.extend_from_slice(vals);
-    buf.sort_unstable_by(f64::total_cmp);
+/// Densest offset among the sorted tangent offsets `vals`: the window of
+/// `width` (2τ, τ = kσ with σ the set's median) holding the most offsets,
+/// and its mean. Returns `(count, mean)`.
+fn densest(vals: &[f64], width: f64) -> (usize, f64) {
     let (mut best, mut best_lo, mut lo) = (0usize, 0usize, 0usize);
-    for hi in 0..buf.len() {
-        while buf[hi] - buf[lo] > width {
+    for hi in 0..vals.len() {
+        while vals[hi] - vals[lo] > width {
             lo += 1;
         }
         if hi + 1 - lo > best {
@@ -198,8 +195,44 @@ fn densest(vals: &[f64], width: f64, buf: &mut Vec<f64>) -> (usize, f64) {
             best_lo = lo;
         }
     }
-    let mean = buf[best_lo..best_lo + best].iter().sum::<f64>() / best.max(1) as f64;
+    let mean = vals[best_lo..best_lo + best].iter().sum::<f64>() / best.max(1) as f64;
     (best, mean)
+}
+
+/// Kernel terms farther than this many σ from the centre are left out of
+/// the scan's score: each is below e^−36 ≈ 2·10⁻¹⁶ of a term at the centre.
+const KERNEL_CUT_SIGMAS: f64 = 8.5;
+
+/// The tangent offsets of a candidate's echoes at one scan angle, sorted,
+/// with `order[i]` the position in the set of the `i`-th smallest. The
+/// order is kept from one angle to the next, which barely changes it, so
+/// the insertion sort is nearly linear.
+#[derive(Default)]
+struct SortedOffsets {
+    order: Vec<usize>,
+    vals: Vec<f64>,
+}
+
+impl SortedOffsets {
+    fn reset(&mut self, len: usize) {
+        self.order.clear();
+        self.order.extend(0..len);
+    }
+    fn at(&mut self, tan: &Tangents, set: &[usize], n: Point) {
+        self.vals.clear();
+        self.vals.extend(self.order.iter().map(|&i| tan.offset(set[i], n)));
+        for i in 1..self.vals.len() {
+            let (v, o) = (self.vals[i], self.order[i]);
+            let mut j = i;
+            while j > 0 && self.vals[j - 1].total_cmp(&v) == std::cmp::Ordering::Greater {
+                self.vals[j] = self.vals[j - 1];
+                self.order[j] = self.order[j - 1];
+                j -= 1;
+            }
+            self.vals[j] = v;
+            self.order[j] = o;
+        }
+    }
 }
 
 /// The angle in `[lo, hi]` minimising the weighted variance of the tangent
@@ -359,7 +392,8 @@ fn spread(tan: &Tangents, set: &[usize], theta: f64) -> (f64, f64) {
 /// round (from a [`NearSet`], which returns what a full gather would).
 fn refine(ctx: &Ctx, tan: &Tangents, theta0: f64, rho0: f64, origin: Point, bin: f64, rho_bin: f64) -> Option<Cand> {
     let mut buf = Vec::new();
-    let mut vals = Vec::new();
+    let mut sorted = SortedOffsets::default();
+    let mut best_order = Vec::new();
     // The scan's resolution: 4 bins in 40 steps, searched coarse to fine (21
     // angles a fifth of a bin apart, then the 2 between them about the best
     // one): 23 scores instead of 41. (A coarser first pass, 9 angles, found
@@ -380,18 +414,19 @@ fn refine(ctx: &Ctx, tan: &Tangents, theta0: f64, rho0: f64, origin: Point, bin:
         }
         let mut sig: Vec<f64> = set0.iter().map(|&k| tan.sigma[k]).collect();
         let width = 2.0 * ctx.params.band_sigmas * median(&mut sig);
+        let cut = KERNEL_CUT_SIGMAS * sig.iter().copied().fold(0.0, f64::max);
         let lo = theta - 2.0 * bin;
-        let mut score_at = |s: usize| -> (f64, f64) {
+        sorted.reset(set0.len());
+        let score_at = |s: usize, sorted: &mut SortedOffsets| -> (f64, f64) {
             let th = lo + step * s as f64;
-            let n = Point::from_angle(th);
-            vals.clear();
-            vals.extend(set0.iter().map(|&k| tan.offset(k, n)));
-            let (_, centre) = densest(&vals, width, &mut buf);
-            let score: f64 = set0
-                .iter()
-                .zip(&vals)
-                .map(|(&k, &r)| {
-                    let x = (r - centre) / tan.sigma[k];
+            sorted.at(tan, &set0, Point::from_angle(th));
+            let vals = &sorted.vals;
+            let (_, centre) = densest(vals, width);
+            let first = vals.partition_point(|&r| r < centre - cut);
+            let last = vals.partition_point(|&r| r <= centre + cut);
+            let score: f64 = (first..last)
+                .map(|i| {
+                    let x = (vals[i] - centre) / tan.sigma[set0[sorted.order[i]]];
                     (-0.5 * x * x).exp()
                 })
                 .sum();
@@ -400,9 +435,10 @@ fn refine(ctx: &Ctx, tan: &Tangents, theta0: f64, rho0: f64, origin: Point, bin:
         let stride = STEPS / COARSE;
         let mut best = (f64::NEG_INFINITY, 0usize, rho);
         for c in 0..=COARSE {
-            let (score, centre) = score_at(c * stride);
+            let (score, centre) = score_at(c * stride, &mut sorted);
             if score > best.0 {
                 best = (score, c * stride, centre);
+                best_order.clone_from(&sorted.order);
             }
         }
         let (f_lo, f_hi) = (best.1.saturating_sub(stride), (best.1 + stride).min(STEPS));
@@ -410,7 +446,8 @@ fn refine(ctx: &Ctx, tan: &Tangents, theta0: f64, rho0: f64, origin: Point, bin:
             if s % stride == 0 {
                 continue;
             }
-            let (score, centre) = score_at(s);
+            sorted.order.clone_from(&best_order);
+            let (score, centre) = score_at(s, &mut sorted);
             if score > best.0 {
                 best = (score, s, centre);
             }
