@@ -759,16 +759,31 @@ pub(crate) fn find_lines(ctx: &Ctx) -> LinesResult {
     // A peak next to a line already refined (within 2 bins in angle, and
     // that line's midpoint within 2 offset bins plus a band of the peak's
     // line) is the same line's skirt: refining it again finds that line.
+    // A peak whose echoes, at the peak itself, already bend along the line
+    // (the tangents of a pillar or of a circle's arc) is not refined: the
+    // curvature test rejects it afterwards anyway, and a tilt of the line
+    // (the peak's angle is off by up to half a bin) adds only a linear term
+    // to the residuals, not a sagitta. It still stands for its neighbours.
     let mut refined: Vec<Cand> = Vec::new();
+    let mut screened: Vec<Cand> = Vec::new();
+    let mut buf = Vec::new();
     for &(_, t, b) in &peaks {
         let (theta, rho) = (t as f64 * bin, b as f64 * rho_bin - r_max);
         let n = Point::from_angle(theta);
-        let near = refined.iter().any(|c| {
+        let near = refined.iter().chain(&screened).any(|c| {
             let mid = (c.p0 + c.p1) * 0.5;
             angle_diff(theta, c.theta) <= 2.0 * bin
                 && (n.dot(mid - origin) - rho).abs() <= 2.0 * rho_bin + p.band_sigmas * p.default_sigma_m
         });
         if near {
+            continue;
+        }
+        let set = gather(&tan, theta, rho, 0.0, &mut buf);
+        let touches = touches_in_runs(ctx, &set, theta, rho, origin);
+        let (p0, p1) = segment_of(theta, rho, origin, &touches);
+        let quick = Cand { theta, rho, touches, p0, p1, rms_sigmas: f64::INFINITY };
+        if curved(ctx, &quick, origin) {
+            screened.push(quick);
             continue;
         }
         if let Some(c) = refine(ctx, &tan, theta, rho, origin, bin, rho_bin) {
