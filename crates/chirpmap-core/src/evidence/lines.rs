@@ -515,16 +515,31 @@ fn curved(ctx: &Ctx, c: &Cand, origin: Point) -> bool {
     }
     let Some(sol) = solve3(s, y) else { return false };
     let mut sig: Vec<f64> = c.touches.iter().map(|&(k, _)| ctx.preps[k].sigma_m).collect();
-    sol[2].abs() > 0.5 * ctx.params.band_sigmas * median(&mut sig)
+    let sigma_m = median(&mut sig);
+    // Standard error of the fitted q for residuals of σ: σ·√((SᵀS)⁻¹)₂₂, the
+    // (2, 2) cofactor over the determinant. With few echoes (a short pass,
+    // Table I at 50 ms) it reaches kσ/2 itself, and noise alone would call a
+    // straight run curved: the bend must also be significant.
+    let inv22 = (s[0][0] * s[1][1] - s[0][1] * s[1][0]) / det3(s);
+    let se_m = if inv22.is_finite() && inv22 > 0.0 { sigma_m * inv22.sqrt() } else { 0.0 };
+    sol[2].abs() > (0.5 * ctx.params.band_sigmas * sigma_m).max(SAGITTA_SIGNIFICANCE * se_m)
+}
+
+/// How many standard errors a sagitta must reach to count as a bend: 2 took
+/// Table I at 50 ms from score_obstacle 0.520 to 0.586 and changed no other
+/// case of `chirpmap benchmark maps`; 3 cost the loop past circles and the
+/// L-corridor (docs/evidence-mapper.md, Known limits).
+const SAGITTA_SIGNIFICANCE: f64 = 2.0;
+
+/// Determinant of a 3 × 3 matrix (cofactor expansion along the first row).
+fn det3(m: [[f64; 3]; 3]) -> f64 {
+    m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+        + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
 }
 
 /// Solves a 3 × 3 linear system by Cramer's rule; `None` when singular.
 fn solve3(a: [[f64; 3]; 3], y: [f64; 3]) -> Option<[f64; 3]> {
-    let det = |m: [[f64; 3]; 3]| {
-        m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
-            + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
-    };
-    let d = det(a);
+    let d = det3(a);
     if d.abs() < 1e-12 {
         return None;
     }
@@ -534,7 +549,7 @@ fn solve3(a: [[f64; 3]; 3], y: [f64; 3]) -> Option<[f64; 3]> {
         for r in 0..3 {
             m[r][c] = y[r];
         }
-        *o = det(m) / d;
+        *o = det3(m) / d;
     }
     Some(out)
 }
