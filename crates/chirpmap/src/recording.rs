@@ -269,12 +269,12 @@ impl RangeReport {
         methods: &[Method],
         geom: &RangeGeometry,
     ) -> Result<Option<StreamedRange>> {
-        use chirpmap_audio::stream::{Filtered, ScanError, scan_chirps, visit_chirps};
+        use chirpmap_audio::stream::{Filtered, visit_chirps};
         use chirpmap_audio::wav::WavStream;
         let open = || WavStream::open(path, channel);
         let wav = open()?;
         let fs = f64::from(wav.sample_rate_hz);
-        let (n, n_channels) = (wav.frames, wav.n_channels);
+        let n = wav.frames;
         check_speed(chirp.speed_of_sound_mps)?;
         let (tpl, lim) = template_and_limits(n, fs, chirp, false)?;
         geom.validate()?;
@@ -282,20 +282,10 @@ impl RangeReport {
             return Err(Error::Invalid("no ranging method given".into()));
         }
         let sos = paper_highpass(fs)?;
-        let mut src = Filtered::new(wav, &sos);
-        let scanned = scan_chirps(&mut src, n, &tpl, lim.max_delta_d_m / lim.speed_of_sound_mps);
-        if !src.any_nonzero_input && !matches!(scanned, Err(ScanError::Audio(chirpmap_audio::AudioError::Truncated(_))))
-        {
-            let hint =
-                if n_channels > 1 { format!(" (it has {n_channels} channels: try --channel)") } else { String::new() };
-            return Err(Error::Invalid(format!("channel {channel} is silent (every sample is zero){hint}")));
-        }
-        let clipped = src.inner().clipped_samples();
-        let checkpoints = std::mem::take(&mut src.checkpoints);
-        let scan = match scanned {
-            Ok(s) => s,
-            Err(ScanError::MedianLost) => return Ok(None),
-            Err(ScanError::Audio(e)) => return Err(e.into()),
+        let Some(FirstPass { scan, clipped, checkpoints }) =
+            first_pass(wav, &sos, &tpl, lim.max_delta_d_m / lim.speed_of_sound_mps, channel)?
+        else {
+            return Ok(None);
         };
         let m = tpl.len();
         // What the methods read (matched: 64 samples before the onset to the
@@ -611,6 +601,43 @@ impl RecordingEchoes {
             chirps: dets.len(),
             chirps_without_pose: dets.len() - covered,
         })
+    }
+}
+
+/// What the first streamed pass over a recording found: the chirps' scan,
+/// the clipped samples and the high-pass filter's checkpoints for the
+/// second read of each chirp's window.
+pub(crate) struct FirstPass {
+    pub scan: chirpmap_audio::stream::Scan,
+    pub clipped: usize,
+    pub checkpoints: Vec<chirpmap_audio::stream::Checkpoint>,
+}
+
+/// The first pass shared by the streamed `range` and `range --echoes`:
+/// high-pass and scan for chirps; a silent channel is an error naming it;
+/// `None` when the scan must fall back to detection in memory.
+pub(crate) fn first_pass(
+    wav: chirpmap_audio::wav::WavStream,
+    sos: &chirpmap_audio::filter::Sos,
+    tpl: &ChirpTemplate,
+    max_echo_delay_s: f64,
+    channel: usize,
+) -> Result<Option<FirstPass>> {
+    use chirpmap_audio::stream::{Filtered, ScanError, scan_chirps};
+    let (n, n_channels) = (wav.frames, wav.n_channels);
+    let mut src = Filtered::new(wav, sos);
+    let scanned = scan_chirps(&mut src, n, tpl, max_echo_delay_s);
+    if !src.any_nonzero_input && !matches!(scanned, Err(ScanError::Audio(chirpmap_audio::AudioError::Truncated(_)))) {
+        let hint =
+            if n_channels > 1 { format!(" (it has {n_channels} channels: try --channel)") } else { String::new() };
+        return Err(Error::Invalid(format!("channel {channel} is silent (every sample is zero){hint}")));
+    }
+    let clipped = src.inner().clipped_samples();
+    let checkpoints = std::mem::take(&mut src.checkpoints);
+    match scanned {
+        Ok(scan) => Ok(Some(FirstPass { scan, clipped, checkpoints })),
+        Err(ScanError::MedianLost) => Ok(None),
+        Err(ScanError::Audio(e)) => Err(e.into()),
     }
 }
 

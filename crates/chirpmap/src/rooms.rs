@@ -13,7 +13,7 @@
 //! echoes of the floor and the ceiling are labelled and left out of it.
 
 use crate::error::{Error, Result};
-use crate::recording::{ChirpSpec, check_speed};
+use crate::recording::{ChirpSpec, FirstPass, check_speed, first_pass};
 use chirpmap_audio::echoes::{Complex64, Pursuit, PursuitParams, SystemResponse, pursue};
 use chirpmap_audio::farina::SweepKernel;
 use chirpmap_audio::filter::paper_highpass;
@@ -447,13 +447,12 @@ impl RoomReport {
         geom: &RoomGeometry,
         opts: &EchoOptions,
     ) -> Result<Option<StreamedRoom>> {
-        use chirpmap_audio::stream::{Filtered, ScanError, scan_chirps, visit_chirps};
+        use chirpmap_audio::stream::{Filtered, visit_chirps};
         use chirpmap_audio::wav::WavStream;
         let open = || WavStream::open(path, channel);
         let wav = open()?;
         let fs = f64::from(wav.sample_rate_hz);
         let n = wav.frames;
-        let n_channels = wav.n_channels;
         let a = check_speed(chirp.speed_of_sound_mps)?;
         let kernel = SweepKernel::new(chirp.kind, chirp.f_start_hz, chirp.f_end_hz, chirp.duration_s, fs)?;
         if kernel.len() > n {
@@ -471,20 +470,8 @@ impl RoomReport {
         geom.validate()?;
         opts.validate()?;
         let tpl = kernel.detection_template()?;
-        let mut src = Filtered::new(wav, &sos);
-        let scanned = scan_chirps(&mut src, n, &tpl, max_dd / a);
-        if !src.any_nonzero_input && !matches!(scanned, Err(ScanError::Audio(chirpmap_audio::AudioError::Truncated(_))))
-        {
-            let hint =
-                if n_channels > 1 { format!(" (it has {n_channels} channels: try --channel)") } else { String::new() };
-            return Err(Error::Invalid(format!("channel {channel} is silent (every sample is zero){hint}")));
-        }
-        let clipped = src.inner().clipped_samples();
-        let checkpoints = std::mem::take(&mut src.checkpoints);
-        let scan = match scanned {
-            Ok(s) => s,
-            Err(ScanError::MedianLost) => return Ok(None),
-            Err(ScanError::Audio(e)) => return Err(e.into()),
+        let Some(FirstPass { scan, clipped, checkpoints }) = first_pass(wav, &sos, &tpl, max_dd / a, channel)? else {
+            return Ok(None);
         };
         let m = scan.template_len();
         let pre = pre_samples(fs);
