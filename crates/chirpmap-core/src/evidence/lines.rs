@@ -713,6 +713,9 @@ pub(crate) fn find_lines(ctx: &Ctx) -> LinesResult {
     let inv_half: Vec<f64> = half.iter().map(|h| 1.0 / h).collect();
     let mut rho_buf = vec![0.0; tan.len()];
     let window = half.iter().map(|h| (2.0 * h / rho_bin) as usize + 2).max().unwrap_or(1);
+    // Offset of each bin's centre (the same expression as in the loop it
+    // replaces, so the same value), padded by a window for the last spans.
+    let centres: Vec<f64> = (0..n_rho + window).map(|i| i as f64 * rho_bin - r_max).collect();
     // Angle by angle (each echo's votes reach a cell in echo order either
     // way): one accumulator row stays in cache, and the offsets of all
     // echoes at one angle are a straight, vectorisable loop.
@@ -731,8 +734,8 @@ pub(crate) fn find_lines(ctx: &Ctx) -> LinesResult {
             // data-dependent loop length.
             let end = (first + window).min(n_rho);
             let _ = hi;
-            for (i, v) in row[first..end].iter_mut().enumerate() {
-                let d = ((first + i) as f64 * rho_bin - r_max - rho).abs();
+            for (v, &x) in row[first..end].iter_mut().zip(&centres[first..]) {
+                let d = (x - rho).abs();
                 *v += (1.0 - d * inv_half).max(0.0) as f32;
             }
         }

@@ -31,7 +31,7 @@ use crate::ellipse::Ellipse;
 use crate::error::CoreError;
 use crate::geometry::Point;
 use crate::grid::{Grid, GridSpec};
-use crate::mapper::{Highlight, local_maxima};
+use crate::mapper::{Highlight, local_maxima_above};
 use serde::{Deserialize, Serialize};
 
 pub use band::{band_cells_naive, for_each_band_span};
@@ -408,14 +408,11 @@ pub fn map_evidence(echoes: &[Echo], spec: GridSpec, params: &EvidenceParams) ->
         }
     }
 
-    let mut kept = grid.clone();
-    for v in &mut kept.data {
-        if *v < params.highlight_min_logodds || *v <= 0.0 {
-            *v = 0.0;
-        }
-    }
+    // Maxima of the map with cells below the floor (and all cells ≤ 0) taken
+    // as 0: the smallest positive f64 as the floor keeps exactly the cells > 0.
+    let floor = params.highlight_min_logodds.max(f64::from_bits(1));
     let r_cells = (params.peak_radius_m / spec.cell_m + 1e-9).floor().min(1e6) as usize;
-    let mut highlights = local_maxima(&kept, r_cells);
+    let mut highlights = local_maxima_above(&grid, r_cells, floor, &mut Vec::new());
 
     let mut surfaces: Vec<Surface> = surfaces.into_iter().map(|(s, _)| s).collect();
     surfaces.sort_by_key(|s| std::cmp::Reverse(s.support));
@@ -477,12 +474,13 @@ fn prepare<'a>(echoes: &[Echo], spec: GridSpec, params: &'a EvidenceParams) -> R
 
 /// Carves each measurement's first ellipse, shrunk by kσ plus a cell's
 /// half-diagonal (in focal excess, ≤ 2 per metre) so that a cell is carved
-/// only when all of it is inside. Row spans go into a difference array, so
-/// the cost is one entry per row, not per cell. Returns cells carved.
+/// only when all of it is inside. Row spans go into a difference array (the
+/// free grid itself, summed along each row in place), so the cost is one
+/// entry per row, not per cell. Returns cells carved.
 fn carve_free(ctx: &mut Ctx) -> Result<u64, CoreError> {
     let spec = ctx.spec;
     let nx = spec.nx;
-    let mut diff = vec![0.0; (nx + 1) * spec.ny];
+    let diff = &mut ctx.free;
     let mut carved = 0u64;
     let l_free = ctx.params.free_logodds;
     for m in &ctx.meas {
@@ -500,16 +498,19 @@ fn carve_free(ctx: &mut Ctx) -> Result<u64, CoreError> {
             continue;
         }
         for_each_band_span(p.ellipse.focus_a, p.ellipse.focus_b, 0.0, dd_free, &spec, |j, lo, hi| {
-            diff[j * (nx + 1) + lo] += l_free;
-            diff[j * (nx + 1) + hi + 1] -= l_free;
+            diff[j * nx + lo] += l_free;
+            // The end of a span reaching the row's last cell needs no entry.
+            if hi + 1 < nx {
+                diff[j * nx + hi + 1] -= l_free;
+            }
             carved += (hi - lo + 1) as u64;
         })?;
     }
-    for j in 0..spec.ny {
+    for row in diff.chunks_exact_mut(nx) {
         let mut acc = 0.0;
-        for i in 0..nx {
-            acc += diff[j * (nx + 1) + i];
-            ctx.free[j * nx + i] = acc;
+        for v in row {
+            acc += *v;
+            *v = acc;
         }
     }
     Ok(carved)
