@@ -261,24 +261,354 @@ impl From<AudioError> for ScanError {
 /// Samples read from the source at a time.
 pub const BLOCK: usize = 1 << 16;
 
+/// What a scan does with the windows of likely chirps as it passes them
+/// (see [`scan_visiting`]).
+pub struct Visitor<'a, R> {
+    /// Samples of each window before the onset.
+    pub before: usize,
+    /// Samples of each window from the onset (at least the template's length).
+    pub after: usize,
+    /// Called with a window (clipped to the stream) and the onset's index in it,
+    /// from any thread, in any order.
+    pub visit: &'a (dyn Fn(&[f32], usize) -> R + Sync),
+}
+
+impl<R> std::fmt::Debug for Visitor<'_, R> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Visitor").field("before", &self.before).field("after", &self.after).finish_non_exhaustive()
+    }
+}
+
+/// One `T` per thread of rayon's current pool (and one for any other
+/// thread): the caches of a [`Visitor`] called from several threads.
+#[derive(Debug)]
+pub struct PerThread<T> {
+    slots: Vec<std::sync::Mutex<T>>,
+}
+
+impl<T: Default> Default for PerThread<T> {
+    fn default() -> Self {
+        Self { slots: (0..=rayon::current_num_threads()).map(|_| std::sync::Mutex::default()).collect() }
+    }
+}
+
+impl<T> PerThread<T> {
+    /// `f` with this thread's `T`.
+    pub fn with<U>(&self, f: impl FnOnce(&mut T) -> U) -> U {
+        let last = self.slots.len() - 1;
+        let i = rayon::current_thread_index().map_or(last, |i| i.min(last));
+        let mut t = self.slots[i].lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        f(&mut t)
+    }
+}
+
+/// What a scan computed for the likely chirps it passed: the inputs the
+/// chirp selection and the caller would otherwise read a second time.
+#[derive(Debug)]
+pub struct Visits<R> {
+    /// Normalised correlation ([`Scan::ncc`]) at each visited onset.
+    pub ncc: HashMap<usize, f64>,
+    /// What the visitor returned, by onset.
+    pub results: HashMap<usize, R>,
+}
+
+impl<R> Default for Visits<R> {
+    fn default() -> Self {
+        Self { ncc: HashMap::new(), results: HashMap::new() }
+    }
+}
+
 /// First pass of [`crate::detect::detect_chirps`] over a stream of `len`
 /// high-passed samples (the same errors, in the same order, for the same samples).
-pub fn scan_chirps(
-    src: &mut dyn BlockSource,
+pub fn scan_chirps<S: BlockSource + Send + ?Sized>(
+    src: &mut S,
     len: usize,
     tpl: &ChirpTemplate,
     max_echo_delay_s: f64,
 ) -> Result<Scan, ScanError> {
-    scan_with_cap(src, len, tpl, max_echo_delay_s, MEDIAN_CAP)
+    scan_with_cap::<S, ()>(src, len, tpl, max_echo_delay_s, MEDIAN_CAP, None).map(|(s, _)| s)
 }
 
-fn scan_with_cap(
-    src: &mut dyn BlockSource,
+/// [`scan_chirps`] that also visits, on the way, the window of every matched-filter
+/// peak that is likely a chirp (the strongest within the chirp selection's own
+/// spans, well above the level of its FFT block), and computes its normalised
+/// correlation, while those samples are still at hand: with a visitor that
+/// ranges a chirp, one read of the stream serves both the detection and the
+/// ranging (speculative: the selection, exact and unchanged, decides later
+/// which visits count; a chirp it accepts without a visit is read again).
+///
+/// Reading and high-passing the next FFT block (and the visits) run
+/// alongside the current block's correlation (`rayon::join`: in parallel
+/// when rayon has two threads). Every value is computed by the same code
+/// from the same samples whatever the thread count, so the results are the
+/// same bit for bit.
+pub fn scan_visiting<S: BlockSource + Send + ?Sized, R: Send>(
+    src: &mut S,
+    len: usize,
+    tpl: &ChirpTemplate,
+    max_echo_delay_s: f64,
+    visitor: Visitor<'_, R>,
+) -> Result<(Scan, Visits<R>), ScanError> {
+    scan_with_cap(src, len, tpl, max_echo_delay_s, MEDIAN_CAP, Some(visitor))
+}
+
+/// Per-chunk maxima of one FFT block pair: `(chunk, max |c|, lag % CHUNK
+/// of the first lag reaching it)`, partial chunks at the ends included.
+type Segments = Vec<(usize, f32, u32)>;
+
+/// Samples kept from a stream: consecutive blocks as read (never copied
+/// into one buffer), the first starting at sample `x0`.
+#[derive(Debug, Default)]
+struct Kept {
+    blocks: std::collections::VecDeque<Vec<f32>>,
+    x0: usize,
+    end: usize,
+    /// Emptied blocks, for the next reads (no fresh pages per block).
+    spare: Vec<Vec<f32>>,
+}
+
+impl Kept {
+    fn push(&mut self, b: Vec<f32>) {
+        self.end += b.len();
+        if b.is_empty() {
+            self.spare.push(b);
+        } else {
+            self.blocks.push_back(b);
+        }
+    }
+    fn fresh(&mut self) -> Vec<f32> {
+        self.spare.pop().unwrap_or_default()
+    }
+    /// Drops the blocks that end at or before `pos`; `any_nonzero` learns
+    /// whether any of their samples was not zero.
+    fn drop_before(&mut self, pos: usize, any_nonzero: &mut bool) {
+        while let Some(b) = self.blocks.front() {
+            if self.x0 + b.len() > pos {
+                break;
+            }
+            *any_nonzero = *any_nonzero || b.iter().any(|v| *v != 0.0);
+            self.x0 += b.len();
+            if let Some(mut b) = self.blocks.pop_front() {
+                b.clear();
+                self.spare.push(b);
+            }
+        }
+    }
+    /// The kept samples of `[from, to)`, in order, as slices.
+    fn pieces(&self, from: usize, to: usize) -> impl Iterator<Item = &[f32]> {
+        let mut at = self.x0;
+        self.blocks.iter().filter_map(move |b| {
+            let (b0, b1) = (at, at + b.len());
+            at = b1;
+            let (lo, hi) = (from.max(b0), to.min(b1));
+            (lo < hi).then(|| &b[lo - b0..hi - b0])
+        })
+    }
+    /// Samples `[from, to)` (all kept) as one slice: borrowed when one block
+    /// holds them, else copied into `scratch`.
+    fn window<'s>(&'s self, from: usize, to: usize, scratch: &'s mut Vec<f32>) -> &'s [f32] {
+        let mut it = self.pieces(from, to);
+        match (it.next(), it.next()) {
+            (Some(p), None) => p,
+            (first, second) => {
+                scratch.clear();
+                scratch.extend(first.into_iter().chain(second).chain(it).flatten());
+                scratch
+            }
+        }
+    }
+}
+
+/// Correlates the block pair starting at lag `s` (samples from `kept`) and
+/// writes its chunk maxima to `segs`, in lag order: the same values,
+/// compared in the same order, as `detect_chirps`. With `level`, also
+/// returns the median of the chunk maxima.
+#[allow(clippy::too_many_arguments)]
+fn correlate_pair(
+    kept: &Kept,
+    s: usize,
+    step: usize,
+    n_lags: usize,
+    h: &[Complex32],
+    plans: (&dyn rustfft::Fft<f32>, &dyn rustfft::Fft<f32>),
+    buf: &mut [Complex32],
+    scratch: &mut [Complex32],
+    segs: &mut Segments,
+    level: bool,
+) -> Option<f32> {
+    let (fwd, inv) = plans;
+    let nfft = buf.len();
+    let s2 = s + step;
+    buf.fill(Complex32::new(0.0, 0.0));
+    let mut k = 0;
+    for p in kept.pieces(s, s + nfft) {
+        for (b, v) in buf[k..k + p.len()].iter_mut().zip(p) {
+            b.re = *v;
+        }
+        k += p.len();
+    }
+    if s2 < n_lags {
+        let mut k = 0;
+        for p in kept.pieces(s2, s2 + nfft) {
+            for (b, v) in buf[k..k + p.len()].iter_mut().zip(p) {
+                b.im = *v;
+            }
+            k += p.len();
+        }
+    }
+    fwd.process_with_scratch(buf, scratch);
+    for (b, hh) in buf.iter_mut().zip(h) {
+        *b *= hh;
+    }
+    inv.process_with_scratch(buf, scratch);
+    segs.clear();
+    for (start, part) in [(s, 0usize), (s2, 1usize)] {
+        if start >= n_lags {
+            continue;
+        }
+        let end = (start + step).min(n_lags);
+        let mut lag = start;
+        while lag < end {
+            let stop = ((lag / CHUNK + 1) * CHUNK).min(end);
+            let (mut mx, mut arg) = (0.0f32, 0u32);
+            for (j, c) in buf[lag - start..stop - start].iter().enumerate() {
+                let v = if part == 0 { c.re } else { c.im }.abs();
+                if v > mx {
+                    mx = v;
+                    arg = ((lag + j) % CHUNK) as u32;
+                }
+            }
+            segs.push((lag / CHUNK, mx, arg));
+            lag = stop;
+        }
+    }
+    (level && !segs.is_empty()).then(|| {
+        let mut vals: Vec<f32> = segs.iter().map(|g| g.1).collect();
+        let mid = vals.len() / 2;
+        *vals.select_nth_unstable_by(mid, f32::total_cmp).1
+    })
+}
+
+/// Matched-filter peaks that are the strongest within the chirp selection's
+/// spans (nothing as strong up to `after` lags before, nothing stronger up to
+/// `before` lags after): the likely chirps a scan visits.
+#[derive(Debug, Default)]
+struct Peaks {
+    before: usize,
+    after: usize,
+    /// Earlier values, non-increasing from front to back (a sliding maximum).
+    recent: std::collections::VecDeque<(usize, f32)>,
+    /// Peaks not yet passed by `before` lags.
+    pending: std::collections::VecDeque<(usize, f32)>,
+}
+
+impl Peaks {
+    fn push(&mut self, lag: usize, v: f32) {
+        while self.recent.front().is_some_and(|r| r.0 + self.after < lag) {
+            self.recent.pop_front();
+        }
+        let dominated = self.recent.front().is_some_and(|r| r.1 >= v);
+        while self.recent.back().is_some_and(|r| r.1 < v) {
+            self.recent.pop_back();
+        }
+        self.recent.push_back((lag, v));
+        let before = self.before;
+        self.pending.retain(|p| !(p.0 + before >= lag && p.1 < v));
+        if !dominated {
+            self.pending.push_back((lag, v));
+        }
+    }
+    /// Moves to `out` the peaks whose spans end before lag `upto` (every
+    /// later value is at or after `upto`).
+    fn settled(&mut self, upto: usize, out: &mut Vec<(usize, f32)>) {
+        while let Some(&p) = self.pending.front() {
+            if p.0 + self.before >= upto {
+                break;
+            }
+            out.push(p);
+            self.pending.pop_front();
+        }
+    }
+}
+
+/// The running state of a scan's chunk maxima, fed in lag order.
+#[derive(Debug)]
+struct Chunks {
+    med: MedianWindow,
+    global: f32,
+    cands: Vec<(usize, f32)>,
+    cur: (usize, f32, u32),
+    peaks: Option<Peaks>,
+}
+
+impl Chunks {
+    /// One chunk's maximum is final.
+    fn close(&mut self, visit_floor: f32) {
+        let (ci, v, arg) = self.cur;
+        let lag = ci * CHUNK + arg as usize;
+        self.global = self.global.max(v);
+        if self.med.push(v) {
+            let floor = MIN_PEAK_RATIO as f32 * self.med.floor();
+            self.cands.retain(|c| c.1 >= floor);
+        }
+        if v >= MIN_PEAK_RATIO as f32 * self.med.floor() {
+            self.cands.push((lag, v));
+        }
+        if let Some(p) = self.peaks.as_mut()
+            && v >= visit_floor
+            && v >= 0.01 * self.global
+            && v > 0.0
+        {
+            p.push(lag, v);
+        }
+    }
+    fn feed(&mut self, segs: &Segments, visit_floor: f32) {
+        for &(ci, v, arg) in segs {
+            if ci != self.cur.0 {
+                self.close(visit_floor);
+                self.cur = (ci, 0.0, 0);
+            }
+            if v > self.cur.1 {
+                self.cur.1 = v;
+                self.cur.2 = arg;
+            }
+        }
+    }
+}
+
+/// Visits the windows of `due` (all within `kept`) in parallel, adding
+/// their correlations and results to `visits`.
+#[allow(clippy::too_many_arguments)]
+fn visit_all<R: Send>(
+    kept: &Kept,
+    due: &[(usize, f32)],
+    len: usize,
+    m: usize,
+    (w_before, w_after): (usize, usize),
+    ncc_of: &(dyn Fn(&[f32], f32) -> f64 + Sync),
+    visit: &(dyn Fn(&[f32], usize) -> R + Sync),
+) -> Vec<(usize, f64, R)> {
+    use rayon::prelude::*;
+    due.par_iter()
+        .with_max_len(1)
+        .map_init(Vec::new, |scratch, &(onset, c)| {
+            let (w0, w1) = (onset.saturating_sub(w_before), (onset + w_after).min(len));
+            let w = kept.window(w0, w1, scratch);
+            let ncc = ncc_of(&w[onset - w0..(onset + m - w0).min(w.len())], c);
+            (onset, ncc, visit(w, onset - w0))
+        })
+        .collect()
+}
+
+#[allow(clippy::too_many_lines)]
+fn scan_with_cap<S: BlockSource + Send + ?Sized, R: Send>(
+    src: &mut S,
     len: usize,
     tpl: &ChirpTemplate,
     max_echo_delay_s: f64,
     median_cap: usize,
-) -> Result<Scan, ScanError> {
+    visitor: Option<Visitor<'_, R>>,
+) -> Result<(Scan, Visits<R>), ScanError> {
     let m = tpl.len();
     if m == 0 || m > len {
         return Err(AudioError::ChirpLongerThanRecording {
@@ -296,83 +626,129 @@ fn scan_with_cap(
     let inv = cache.plan(nfft, true);
     let mut buf = vec![Complex32::new(0.0, 0.0); nfft];
     let mut scratch = vec![Complex32::new(0.0, 0.0); fwd.get_inplace_scratch_len().max(inv.get_inplace_scratch_len())];
-    let mut x: Vec<f32> = Vec::with_capacity(2 * nfft + BLOCK);
-    let (mut x0, mut eof, mut any_nonzero) = (0usize, false, false);
-    let mut med = MedianWindow::new(median_cap);
-    let mut global = 0.0f32;
-    let mut cands: Vec<(usize, f32)> = Vec::new();
-    let (mut cur_ci, mut cur_max, mut cur_arg) = (0usize, 0.0f32, 0u32);
-    let mut flush = |ci: usize, v: f32, arg: u32, cands: &mut Vec<(usize, f32)>, med: &mut MedianWindow| {
-        global = global.max(v);
-        if med.push(v) {
-            let floor = MIN_PEAK_RATIO as f32 * med.floor();
-            cands.retain(|c| c.1 >= floor);
-        }
-        if v >= MIN_PEAK_RATIO as f32 * med.floor() {
-            cands.push((ci * CHUNK + arg as usize, v));
-        }
+    let tpl_norm = tpl.real.iter().map(|v| f64::from(*v) * f64::from(*v)).sum::<f64>().sqrt();
+    let ncc_of = |window: &[f32], c: f32| ncc_value(window, c, tpl_norm, nfft);
+    // The selection's spans (the same as `detect_chirps`'), for the peaks visited.
+    let sel_before = ((0.9 * m as f64) as usize).max(1);
+    let echo = (max_echo_delay_s.max(0.0) * tpl.sample_rate_hz).ceil();
+    let sel_after = m + if echo.is_finite() { echo.min(len as f64) as usize } else { len };
+    let mut st = Chunks {
+        med: MedianWindow::new(median_cap),
+        global: 0.0,
+        cands: Vec::new(),
+        cur: (0, 0.0, 0),
+        peaks: visitor.as_ref().map(|_| Peaks { before: sel_before, after: sel_after, ..Peaks::default() }),
     };
+    let spans = visitor.as_ref().map_or((0, 0), |v| (v.before, v.after.max(m)));
+    let mut visits = Visits::default();
+    // Peaks whose windows are still to visit, in onset order.
+    let mut due: Vec<(usize, f32)> = Vec::new();
+    let mut kept = Kept::default();
+    let (mut eof, mut any_nonzero) = (false, false);
+    let need_of = |s: usize| (s + step + nfft).min(len);
+    // The first block pair's samples.
+    let mut first = kept.fresh();
+    while first.len() < need_of(0) && !eof {
+        eof = src.read(&mut first, BLOCK)? == 0;
+    }
+    kept.push(first);
+    // Chunk maxima of the pair before (fed while this pair is correlated) and of this pair.
+    let (mut prev, mut segs): (Option<(Segments, f32)>, Segments) = (None, Vec::new());
     let mut s = 0usize;
     while s < n_lags {
-        let s2 = s + step;
-        let need = (s2 + nfft).min(len);
-        while x0 + x.len() < need && !eof {
-            let got = src.read(&mut x, BLOCK)?;
-            eof = got == 0;
+        if kept.end < need_of(s) {
+            return Err(AudioError::Truncated(format!("the stream ended after {} of {len} samples", kept.end)).into());
         }
-        if x0 + x.len() < need {
-            return Err(
-                AudioError::Truncated(format!("the stream ended after {} of {len} samples", x0 + x.len())).into()
-            );
+        // While this pair is correlated: the next pair's samples are read and
+        // high-passed, the pair before's maxima are fed to the selection's
+        // state, and the windows due are visited.
+        let target = if s + 2 * step < n_lags { need_of(s + 2 * step) } else { len };
+        let now: Vec<(usize, f32)> = {
+            let k = due.partition_point(|&(o, _)| (o + spans.1).min(len) <= kept.end);
+            due.drain(..k).collect()
+        };
+        let mut next = kept.fresh();
+        let kept_ref = &kept;
+        let visiting = visitor.is_some();
+        let (level, (read, got)) = rayon::join(
+            || {
+                correlate_pair(
+                    kept_ref,
+                    s,
+                    step,
+                    n_lags,
+                    &h,
+                    (&*fwd, &*inv),
+                    &mut buf,
+                    &mut scratch,
+                    &mut segs,
+                    visiting,
+                )
+            },
+            || {
+                rayon::join(
+                    || -> Result<bool, AudioError> {
+                        let mut eof = eof;
+                        while kept_ref.end + next.len() < target && !eof {
+                            eof = src.read(&mut next, BLOCK)? == 0;
+                        }
+                        if let Some((segs, floor)) = prev.take() {
+                            st.feed(&segs, floor);
+                            if let Some(p) = st.peaks.as_mut() {
+                                p.settled(st.cur.0 * CHUNK, &mut due);
+                            }
+                        }
+                        Ok(eof)
+                    },
+                    || match visitor.as_ref() {
+                        Some(v) => visit_all(kept_ref, &now, len, m, spans, &ncc_of, v.visit),
+                        None => Vec::new(),
+                    },
+                )
+            },
+        );
+        eof = read?;
+        kept.push(next);
+        for (onset, ncc, r) in got {
+            visits.ncc.insert(onset, ncc);
+            visits.results.insert(onset, r);
         }
-        let get = |i: usize| if i >= x0 { x.get(i - x0).copied().unwrap_or(0.0) } else { 0.0 };
-        for (k, b) in buf.iter_mut().enumerate() {
-            let re = get(s + k);
-            let im = if s2 < n_lags { get(s2 + k) } else { 0.0 };
-            *b = Complex32::new(re, im);
-        }
-        fwd.process_with_scratch(&mut buf, &mut scratch);
-        for (b, hh) in buf.iter_mut().zip(&h) {
-            *b *= hh;
-        }
-        inv.process_with_scratch(&mut buf, &mut scratch);
-        for (start, part) in [(s, 0usize), (s2, 1usize)] {
-            if start >= n_lags {
-                continue;
-            }
-            let end = (start + step).min(n_lags);
-            for lag in start..end {
-                let c = buf[lag - start];
-                let v = if part == 0 { c.re } else { c.im }.abs();
-                let ci = lag / CHUNK;
-                if ci != cur_ci {
-                    flush(cur_ci, cur_max, cur_arg, &mut cands, &mut med);
-                    (cur_ci, cur_max, cur_arg) = (ci, 0.0, 0);
-                }
-                if v > cur_max {
-                    cur_max = v;
-                    cur_arg = (lag % CHUNK) as u32;
-                }
-            }
-        }
+        let floor = level.map_or(f32::INFINITY, |l| MIN_PEAK_RATIO as f32 * l);
+        prev = Some((std::mem::take(&mut segs), floor));
         s += 2 * step;
-        // Keep what the next block pair reads.
-        let keep_from = s.min(x0 + x.len());
-        if keep_from > x0 {
-            any_nonzero = any_nonzero || x[..keep_from - x0].iter().any(|v| *v != 0.0);
-            x.drain(..keep_from - x0);
-            x0 = keep_from;
+        // Keep what the next block pair reads and the windows still to visit
+        // (a later peak's window starts at most `w_before` before the chunk still open).
+        let mut keep_from = s;
+        if let Some(p) = st.peaks.as_ref() {
+            let first = due.first().or(p.pending.front()).map_or(st.cur.0 * CHUNK, |p| p.0.min(st.cur.0 * CHUNK));
+            keep_from = keep_from.min(first.saturating_sub(spans.0));
+        }
+        kept.drop_before(keep_from, &mut any_nonzero);
+    }
+    if let Some((segs, floor)) = prev.take() {
+        st.feed(&segs, floor);
+    }
+    st.close(0.0);
+    // The last peaks: every window ends within the samples read.
+    if let Some(v) = visitor.as_ref() {
+        if let Some(p) = st.peaks.as_mut() {
+            p.settled(usize::MAX, &mut due);
+        }
+        due.retain(|&(o, _)| o.saturating_sub(spans.0) >= kept.x0 && (o + spans.1).min(len) <= kept.end);
+        for (onset, ncc, r) in visit_all(&kept, &due, len, m, spans, &ncc_of, v.visit) {
+            visits.ncc.insert(onset, ncc);
+            visits.results.insert(onset, r);
         }
     }
-    flush(cur_ci, cur_max, cur_arg, &mut cands, &mut med);
     // The rest of the stream (samples after the last lag's template).
-    loop {
+    kept.drop_before(usize::MAX, &mut any_nonzero);
+    let mut x0 = kept.x0;
+    let mut x = Vec::new();
+    while !eof {
+        x.clear();
+        eof = src.read(&mut x, BLOCK)? == 0;
         any_nonzero = any_nonzero || x.iter().any(|v| *v != 0.0);
         x0 += x.len();
-        x.clear();
-        if eof || src.read(&mut x, BLOCK)? == 0 {
-            break;
-        }
     }
     if x0 != len {
         return Err(AudioError::Truncated(format!("the stream held {x0} samples, not {len}")).into());
@@ -380,6 +756,7 @@ fn scan_with_cap(
     if !any_nonzero {
         return Err(AudioError::Silent.into());
     }
+    let Chunks { med, global, mut cands, .. } = st;
     let median = med.finish().ok_or(ScanError::MedianLost)?;
     let ratio = f64::from(global) / f64::from(median).max(1e-30);
     if ratio.is_nan() || ratio < MIN_PEAK_RATIO {
@@ -391,7 +768,6 @@ fn scan_with_cap(
     cands.retain(|c| c.1 >= thr);
     cands.sort_by(|a, b| b.1.total_cmp(&a.1));
     let before = ((0.9 * m as f64) as usize).max(1);
-    let echo = (max_echo_delay_s.max(0.0) * tpl.sample_rate_hz).ceil();
     if !echo.is_finite() || echo > len as f64 {
         return Err(AudioError::InvalidParam {
             field: "--max-delta-d",
@@ -399,19 +775,28 @@ fn scan_with_cap(
         }
         .into());
     }
-    let tpl_norm = tpl.real.iter().map(|v| f64::from(*v) * f64::from(*v)).sum::<f64>().sqrt();
-    Ok(Scan {
-        len,
-        nfft,
-        m,
-        rate_hz: tpl.sample_rate_hz,
-        duration_s: tpl.chirp.duration_s(),
-        median,
-        cands,
-        before,
-        after: m + echo as usize,
-        tpl_norm,
-    })
+    Ok((
+        Scan {
+            len,
+            nfft,
+            m,
+            rate_hz: tpl.sample_rate_hz,
+            duration_s: tpl.chirp.duration_s(),
+            median,
+            cands,
+            before,
+            after: m + echo as usize,
+            tpl_norm,
+        },
+        visits,
+    ))
+}
+
+/// The normalised correlation of `detect_chirps` (the same sum, in the same order).
+fn ncc_value(window: &[f32], c: f32, tpl_norm: f64, nfft: usize) -> f64 {
+    let energy: f64 = window.iter().map(|v| f64::from(*v) * f64::from(*v)).sum();
+    let e = energy.sqrt() * tpl_norm * nfft as f64;
+    if e > 0.0 { (f64::from(c) / e).min(1.0) } else { 0.0 }
 }
 
 /// What the greedy selection of `detect_chirps` gave with the normalised
@@ -439,9 +824,7 @@ impl Scan {
     /// The normalised correlation at `lag` with `|c|`, given the samples
     /// `x[lag..min(lag + m, len)]`: the same sum, in the same order, as `detect_chirps`.
     pub fn ncc(&self, window: &[f32], c: f32) -> f64 {
-        let energy: f64 = window.iter().map(|v| f64::from(*v) * f64::from(*v)).sum();
-        let e = energy.sqrt() * self.tpl_norm * self.nfft as f64;
-        if e > 0.0 { (f64::from(c) / e).min(1.0) } else { 0.0 }
+        ncc_value(window, c, self.tpl_norm, self.nfft)
     }
 
     /// Runs the greedy selection of `detect_chirps` with the normalised
@@ -546,6 +929,31 @@ pub fn for_windows(
         serve(i, &x[start - x0..end - x0]);
     }
     Ok(())
+}
+
+/// Finishes the detection of a [`Scan`]: the greedy selection of
+/// `detect_chirps` with the normalised correlations in `known` (from
+/// [`Visits::ncc`], or empty), reading from `open()`'s stream the windows of
+/// those it still needs (and adding them to `known`). The detections (or the
+/// error) `detect_chirps` gives.
+pub fn select_reading<S: BlockSource>(
+    scan: &Scan,
+    known: &mut HashMap<usize, f64>,
+    mut open: impl FnMut() -> Result<S, AudioError>,
+) -> Result<Vec<Detection>, AudioError> {
+    loop {
+        match scan.select(known) {
+            Selection::Done(d) => return d,
+            Selection::Tentative { mut need, .. } => {
+                need.sort_by_key(|n| n.0);
+                let ranges: Vec<(usize, usize)> = need.iter().map(|&(lag, _)| (lag, lag + scan.m)).collect();
+                let mut src = open()?;
+                for_windows(&mut src, scan.len, &ranges, |i, x| {
+                    known.insert(need[i].0, scan.ncc(x, need[i].1));
+                })?;
+            }
+        }
+    }
 }
 
 /// Finishes the detection of a [`Scan`] and visits every chirp's window
@@ -683,10 +1091,10 @@ mod tests {
             let max_delay = 0.02;
             let want = detect_chirps(&x, &tpl, &mut cache, max_delay);
             let mut src = Mem(x.clone(), 0);
-            let got = match scan_with_cap(&mut src, len, &tpl, max_delay, cap) {
+            let got = match scan_with_cap::<_, ()>(&mut src, len, &tpl, max_delay, cap, None) {
                 Err(ScanError::MedianLost) => return Ok(()),
                 Err(ScanError::Audio(e)) => Err(e),
-                Ok(scan) => {
+                Ok((scan, _)) => {
                     let mut known = HashMap::new();
                     loop {
                         match scan.select(&known) {
@@ -711,6 +1119,95 @@ mod tests {
                 }
                 (Err(a), Err(b)) => prop_assert_eq!(a.to_string(), b.to_string()),
                 (a, b) => prop_assert!(false, "detect_chirps {:?}, streamed {:?}", a, b),
+            }
+        }
+    }
+
+    /// A test signal: chirps of 0.1 s at 8 kHz with an echo, in noise.
+    fn chirps_in_noise(n_chirps: usize, gap: usize, noise: f32, seed: u64) -> (Vec<f32>, ChirpTemplate) {
+        let fs = 8000.0;
+        let tpl = ChirpTemplate::new(chirpmap_core::LinearChirp::new(3000.0, 200.0, 0.1).unwrap(), fs).unwrap();
+        let m = tpl.len();
+        let mut r = seed | 1;
+        let len = 500 + n_chirps * (m + gap) + 700;
+        let mut x: Vec<f32> = (0..len).map(|_| noise * (xorshift(&mut r) - 0.5)).collect();
+        for k in 0..n_chirps {
+            let at = 500 + k * (m + gap) + (xorshift(&mut r) * 50.0) as usize;
+            for (i, t) in tpl.real.iter().enumerate() {
+                x[at + i] += t;
+                if at + i + 120 < len {
+                    x[at + i + 120] += 0.3 * t;
+                }
+            }
+        }
+        (x, tpl)
+    }
+
+    /// What the test visitor returns: the window's length, the onset in it and its samples' bits.
+    fn fingerprint(w: &[f32], r: usize) -> (usize, usize, u64) {
+        (w.len(), r, w.iter().fold(0u64, |h, v| h.rotate_left(5) ^ u64::from(v.to_bits())))
+    }
+
+    type Visited = (Vec<(usize, f64, (usize, usize, u64))>, Vec<Detection>);
+
+    /// The scan with a visitor, in a pool of `threads`, blocks of `block` samples.
+    fn visited(x: &[f32], tpl: &ChirpTemplate, (before, after): (usize, usize), threads: usize, block: usize) -> Visited {
+        struct Blocks<'a>(&'a [f32], usize, usize);
+        impl BlockSource for Blocks<'_> {
+            fn read(&mut self, out: &mut Vec<f32>, max: usize) -> Result<usize, AudioError> {
+                let n = max.min(self.2).min(self.0.len() - self.1);
+                out.extend_from_slice(&self.0[self.1..self.1 + n]);
+                self.1 += n;
+                Ok(n)
+            }
+        }
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        pool.install(|| {
+            let mut src = Blocks(x, 0, block);
+            let visit = |w: &[f32], r: usize| fingerprint(w, r);
+            let (scan, v) = scan_with_cap(&mut src, x.len(), tpl, 0.02, MEDIAN_CAP, Some(Visitor { before, after, visit: &visit }))
+                .unwrap();
+            let mut known = v.ncc.clone();
+            let dets = select_reading(&scan, &mut known, || Ok(Blocks(x, 0, block))).unwrap();
+            let mut got: Vec<_> = v.results.into_iter().map(|(o, r)| (o, v.ncc[&o], r)).collect();
+            got.sort_by_key(|g| g.0);
+            (got, dets)
+        })
+    }
+
+    /// The visits of one read are what a second read of each window gives,
+    /// every detected chirp is visited, the detections are `detect_chirps'`,
+    /// and one thread or four give the same values bit for bit.
+    #[test]
+    fn visits_are_the_windows_and_do_not_depend_on_threads() {
+        for (n_chirps, gap, noise, seed) in [(40usize, 900usize, 0.05f32, 7u64), (25, 2500, 0.3, 11), (3, 400, 0.0, 5)] {
+            let (x, tpl) = chirps_in_noise(n_chirps, gap, noise, seed);
+            let m = tpl.len();
+            let spans = (40, m + 200);
+            let (got, dets) = visited(&x, &tpl, spans, 1, 1000);
+            let want = detect_chirps(&x, &tpl, &mut FftCache::default(), 0.02).unwrap();
+            assert_eq!(dets.len(), n_chirps);
+            assert_eq!(dets, want);
+            for d in &dets {
+                assert!(got.iter().any(|g| g.0 == d.onset_sample), "chirp at {} not visited", d.onset_sample);
+            }
+            let norm = tpl.real.iter().map(|v| f64::from(*v) * f64::from(*v)).sum::<f64>().sqrt();
+            for &(onset, ncc, r) in &got {
+                let (w0, w1) = (onset.saturating_sub(spans.0), (onset + spans.1).min(x.len()));
+                assert_eq!(r, fingerprint(&x[w0..w1], onset - w0));
+                if let Some(d) = dets.iter().find(|d| d.onset_sample == onset) {
+                    assert_eq!(ncc.to_bits(), d.ncc.to_bits());
+                }
+                let c = x[onset..(onset + m).min(x.len())].iter().map(|v| f64::from(*v).powi(2)).sum::<f64>();
+                assert!(ncc > 0.0 && c > 0.0 && norm > 0.0);
+            }
+            for (threads, block) in [(4, 1000), (2, 65_536), (1, 37)] {
+                let (g2, d2) = visited(&x, &tpl, spans, threads, block);
+                assert_eq!(d2, dets);
+                assert_eq!(g2.len(), got.len());
+                for (a, b) in got.iter().zip(&g2) {
+                    assert_eq!((a.0, a.1.to_bits(), a.2), (b.0, b.1.to_bits(), b.2));
+                }
             }
         }
     }

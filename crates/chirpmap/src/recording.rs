@@ -6,7 +6,7 @@ use chirpmap_audio::doppler::{
     DopplerParams, MovingOptions, WavMethod, bank_scales, detect_moving, direct_rate_range, doppler_echoes,
 };
 use chirpmap_audio::filter::paper_highpass;
-use chirpmap_audio::ranging::{ChirpResult, RangedChirp, gap_floor_m, range_signal};
+use chirpmap_audio::ranging::{ChirpResult, Estimate, RangedChirp, gap_floor_m, range_signal};
 use chirpmap_audio::stats::{median, median_ci95};
 use chirpmap_audio::synth::pattern_cycle;
 use chirpmap_audio::{ChirpTemplate, Method, RangeLimits, wall_distance_m};
@@ -269,7 +269,7 @@ impl RangeReport {
         methods: &[Method],
         geom: &RangeGeometry,
     ) -> Result<Option<StreamedRange>> {
-        use chirpmap_audio::stream::{Filtered, visit_chirps};
+        use chirpmap_audio::stream::{Filtered, PerThread, Visitor, for_windows, scan_visiting, select_reading};
         use chirpmap_audio::wav::WavStream;
         let open = || WavStream::open(path, channel);
         let wav = open()?;
@@ -282,11 +282,6 @@ impl RangeReport {
             return Err(Error::Invalid("no ranging method given".into()));
         }
         let sos = paper_highpass(fs)?;
-        let Some(FirstPass { scan, clipped, checkpoints }) =
-            first_pass(wav, &sos, &tpl, lim.max_delta_d_m / lim.speed_of_sound_mps, channel)?
-        else {
-            return Ok(None);
-        };
         let m = tpl.len();
         // What the methods read (matched: 64 samples before the onset to the
         // largest delay after the chirp) and the figures (50 ms before, 150 ms after).
@@ -294,23 +289,43 @@ impl RangeReport {
         let (plot_before, plot_after) = ((0.05 * fs) as usize, m + (0.15 * fs) as usize);
         let before = plot_before.max(64);
         let after = (m + dmax + 64).max(plot_after);
-        let mut ranger = chirpmap_audio::Ranger::new();
-        type State = (Vec<Vec<Option<chirpmap_audio::Estimate>>>, usize, Vec<f32>, usize);
-        let (dets, (estimates, _, window, window_start)) = visit_chirps(
-            &scan,
-            || Ok(Filtered::resume(open()?, &sos, checkpoints.clone())),
-            before,
-            after,
-            |onsets: &[usize]| -> State { (Vec::with_capacity(onsets.len()), onsets.len() / 2, Vec::new(), 0) },
-            |st: &mut State, k, x, r| {
-                st.0.push(methods.iter().map(|&meth| ranger.estimate(meth, x, r, &tpl, &lim)).collect());
-                if k == st.1 {
-                    let s0 = r.saturating_sub(plot_before);
-                    st.2 = x[s0..(r + plot_after).min(x.len())].to_vec();
-                    st.3 = r - s0;
-                }
-            },
-        )?;
+        // One ranging engine (FFT plans, cached direct-path models) per thread; estimates are
+        // pure functions of the window, whichever engine computes them.
+        let rangers: PerThread<chirpmap_audio::Ranger> = PerThread::default();
+        let estimate = |x: &[f32], r: usize| -> Vec<Option<Estimate>> {
+            rangers.with(|ranger| methods.iter().map(|&meth| ranger.estimate(meth, x, r, &tpl, &lim)).collect())
+        };
+        // One read ranges the likely chirps as the detection passes them.
+        let delay_s = lim.max_delta_d_m / lim.speed_of_sound_mps;
+        let Some(FirstPass { scan: (scan, mut visits), clipped, checkpoints }) = first_pass(wav, &sos, channel, |src| {
+            scan_visiting(src, n, &tpl, delay_s, Visitor { before, after, visit: &estimate })
+        })?
+        else {
+            return Ok(None);
+        };
+        let reopen = || Ok(Filtered::resume(open()?, &sos, checkpoints.clone()));
+        let dets = select_reading(&scan, &mut visits.ncc, reopen)?;
+        // A second read only for the chirps the first did not range, and the middle chirp's figures.
+        let mid = dets.len() / 2;
+        let mut estimates: Vec<Option<Vec<Option<Estimate>>>> =
+            dets.iter().map(|d| visits.results.remove(&d.onset_sample)).collect();
+        let want: Vec<usize> = (0..dets.len()).filter(|&k| k == mid || estimates[k].is_none()).collect();
+        let ranges: Vec<(usize, usize)> =
+            want.iter().map(|&k| (dets[k].onset_sample.saturating_sub(before), dets[k].onset_sample + after)).collect();
+        let (mut window, mut window_start) = (Vec::new(), 0);
+        for_windows(&mut reopen()?, n, &ranges, |i, x| {
+            let k = want[i];
+            let r = dets[k].onset_sample - ranges[i].0;
+            if estimates[k].is_none() {
+                estimates[k] = Some(estimate(x, r));
+            }
+            if k == mid {
+                let s0 = r.saturating_sub(plot_before);
+                window = x[s0..(r + plot_after).min(x.len())].to_vec();
+                window_start = r - s0;
+            }
+        })?;
+        let estimates: Vec<Vec<Option<Estimate>>> = estimates.into_iter().map(|e| e.unwrap_or_else(|| vec![None; methods.len()])).collect();
         let onset_mid = dets.get(dets.len() / 2).map_or(0, |d| d.onset_sample);
         let window_start = onset_mid - window_start;
         let chirps: Vec<RangedChirp> = dets.into_iter().zip(estimates).collect();
@@ -604,29 +619,30 @@ impl RecordingEchoes {
     }
 }
 
-/// What the first streamed pass over a recording found: the chirps' scan,
-/// the clipped samples and the high-pass filter's checkpoints for the
-/// second read of each chirp's window.
-pub(crate) struct FirstPass {
-    pub scan: chirpmap_audio::stream::Scan,
+/// What the first streamed pass over a recording found: the scan's result,
+/// the clipped samples and the high-pass filter's checkpoints for a second
+/// read of chirps' windows.
+pub(crate) struct FirstPass<T> {
+    pub scan: T,
     pub clipped: usize,
     pub checkpoints: Vec<chirpmap_audio::stream::Checkpoint>,
 }
 
 /// The first pass shared by the streamed `range` and `range --echoes`:
-/// high-pass and scan for chirps; a silent channel is an error naming it;
-/// `None` when the scan must fall back to detection in memory.
-pub(crate) fn first_pass(
+/// high-pass and `scan` the channel for chirps; a silent channel is an
+/// error naming it; `None` when the scan must fall back to detection in memory.
+pub(crate) fn first_pass<T>(
     wav: chirpmap_audio::wav::WavStream,
     sos: &chirpmap_audio::filter::Sos,
-    tpl: &ChirpTemplate,
-    max_echo_delay_s: f64,
     channel: usize,
-) -> Result<Option<FirstPass>> {
-    use chirpmap_audio::stream::{Filtered, ScanError, scan_chirps};
-    let (n, n_channels) = (wav.frames, wav.n_channels);
+    scan: impl FnOnce(
+        &mut chirpmap_audio::stream::Filtered<chirpmap_audio::wav::WavStream>,
+    ) -> std::result::Result<T, chirpmap_audio::stream::ScanError>,
+) -> Result<Option<FirstPass<T>>> {
+    use chirpmap_audio::stream::{Filtered, ScanError};
+    let n_channels = wav.n_channels;
     let mut src = Filtered::new(wav, sos);
-    let scanned = scan_chirps(&mut src, n, tpl, max_echo_delay_s);
+    let scanned = scan(&mut src);
     if !src.any_nonzero_input && !matches!(scanned, Err(ScanError::Audio(chirpmap_audio::AudioError::Truncated(_)))) {
         let hint =
             if n_channels > 1 { format!(" (it has {n_channels} channels: try --channel)") } else { String::new() };

@@ -447,7 +447,7 @@ impl RoomReport {
         geom: &RoomGeometry,
         opts: &EchoOptions,
     ) -> Result<Option<StreamedRoom>> {
-        use chirpmap_audio::stream::{Filtered, visit_chirps};
+        use chirpmap_audio::stream::{Filtered, scan_chirps, visit_chirps};
         use chirpmap_audio::wav::WavStream;
         let open = || WavStream::open(path, channel);
         let wav = open()?;
@@ -470,7 +470,9 @@ impl RoomReport {
         geom.validate()?;
         opts.validate()?;
         let tpl = kernel.detection_template()?;
-        let Some(FirstPass { scan, clipped, checkpoints }) = first_pass(wav, &sos, &tpl, max_dd / a, channel)? else {
+        let Some(FirstPass { scan, clipped, checkpoints }) =
+            first_pass(wav, &sos, channel, |src| scan_chirps(src, n, &tpl, max_dd / a))?
+        else {
             return Ok(None);
         };
         let m = scan.template_len();
