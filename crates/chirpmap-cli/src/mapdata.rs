@@ -74,9 +74,10 @@ fn npy_header(shape: (usize, usize)) -> Result<Vec<u8>> {
 pub fn npy_bytes(grid: &Grid) -> Result<Vec<u8>> {
     check_shape(grid)?;
     let mut out = npy_header((grid.spec.ny, grid.spec.nx))?;
-    out.reserve(grid.data.len() * 4);
-    for &v in &grid.data {
-        out.extend_from_slice(&(v as f32).to_le_bytes());
+    let header = out.len();
+    out.resize(header + grid.data.len() * 4, 0);
+    for (dst, &v) in out[header..].chunks_exact_mut(4).zip(&grid.data) {
+        dst.copy_from_slice(&(v as f32).to_le_bytes());
     }
     Ok(out)
 }
@@ -136,12 +137,14 @@ pub fn ros_map(grid: &Grid, values: MapValues, image: &str) -> Result<RosMap> {
     let spec = grid.spec;
     let divisor = occupancy_divisor(grid, values)?;
     let mut pgm = format!("P5\n{} {}\n255\n", spec.nx, spec.ny).into_bytes();
-    pgm.reserve(grid.data.len());
-    for row in grid.data.chunks_exact(spec.nx).rev() {
+    let header = pgm.len();
+    pgm.resize(header + grid.data.len(), 0);
+    // Rows top (y_max) first; plain slice loops, which vectorise (issue 14).
+    for (dst, row) in pgm[header..].chunks_exact_mut(spec.nx).zip(grid.data.chunks_exact(spec.nx).rev()) {
         if divisor > 0.0 {
-            pgm.extend(row.iter().map(|&v| grey_of(v / divisor)));
+            dst.iter_mut().zip(row).for_each(|(d, &v)| *d = grey_of(v / divisor));
         } else {
-            pgm.extend(row.iter().map(|_| grey_of(0.0)));
+            dst.fill(grey_of(0.0));
         }
     }
     let mut yaml = String::new();

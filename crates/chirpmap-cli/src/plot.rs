@@ -420,18 +420,10 @@ fn grid_raster_in(
     scale: ColourScale,
     range: (f64, f64),
 ) -> Vec<u8> {
+    use rayon::prelude::*;
     let spec = grid.spec;
-    let mut last: Option<(u64, RGBColor)> = None;
-    let mut colour = |v: f64| match last {
-        Some((bits, c)) if bits == v.to_bits() => c,
-        _ => {
-            let c = cmap.eval(scale.position(v, range));
-            last = Some((v.to_bits(), c));
-            c
-        }
-    };
     let mut buf = vec![255u8; (w as usize) * (h as usize) * 3];
-    if grid.data.len() != spec.len() || spec.is_empty() {
+    if grid.data.len() != spec.len() || spec.is_empty() || w == 0 {
         return buf;
     }
     let cells = |lo: f64, hi: f64, origin: f64, n: usize| -> Option<(usize, usize)> {
@@ -450,21 +442,39 @@ fn grid_raster_in(
             cells(xa, xa + mx, spec.x_min_m, spec.nx)
         })
         .collect();
-    for sy in 0..h {
-        let yb = y_range.1 - f64::from(sy) * my;
-        let Some((j0, j1)) = cells(yb - my, yb, spec.y_min_m, spec.ny) else { continue };
+    // Pixel rows are independent: drawn on rayon's threads (issue 14).
+    buf.par_chunks_mut(w as usize * 3).enumerate().for_each_init(Vec::new, |row_max, (sy, out)| {
+        let yb = y_range.1 - sy as f64 * my;
+        let Some((j0, j1)) = cells(yb - my, yb, spec.y_min_m, spec.ny) else { return };
+        // The pixel row's cell rows, reduced to one row of column maxima
+        // first (f64::max ignores NaN, so the order of the cells does not matter).
+        let row_of = |j: usize| &grid.data[j * spec.nx..(j + 1) * spec.nx];
+        let maxima: &[f64] = if j1 - j0 == 1 {
+            row_of(j0)
+        } else {
+            row_max.clear();
+            row_max.extend_from_slice(row_of(j0));
+            for j in j0 + 1..j1 {
+                row_max.iter_mut().zip(row_of(j)).for_each(|(m, x)| *m = m.max(*x));
+            }
+            row_max
+        };
+        // The colour of the previous pixel is reused while the value repeats.
+        let mut last: Option<(u64, RGBColor)> = None;
         for (sx, c) in cols.iter().enumerate() {
             let Some((i0, i1)) = *c else { continue };
-            let mut v = f64::NEG_INFINITY;
-            for j in j0..j1 {
-                let row = &grid.data[j * spec.nx..(j + 1) * spec.nx];
-                v = row[i0..i1].iter().fold(v, |m, x| m.max(*x));
-            }
-            let col = colour(v);
-            let k = ((sy as usize) * (w as usize) + sx) * 3;
-            buf[k..k + 3].copy_from_slice(&[col.0, col.1, col.2]);
+            let v = maxima[i0..i1].iter().fold(f64::NEG_INFINITY, |m, x| m.max(*x));
+            let col = match last {
+                Some((bits, c)) if bits == v.to_bits() => c,
+                _ => {
+                    let c = cmap.eval(scale.position(v, range));
+                    last = Some((v.to_bits(), c));
+                    c
+                }
+            };
+            out[sx * 3..sx * 3 + 3].copy_from_slice(&[col.0, col.1, col.2]);
         }
-    }
+    });
     buf
 }
 

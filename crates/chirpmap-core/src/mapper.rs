@@ -140,9 +140,9 @@ pub struct AccumulationMapper {
     /// the most times one echo can add it to a cell. While it is finite no
     /// cell can overflow to infinity (issue 8, item 7).
     max_cell_bound: f64,
-    /// Span buffers of [`Mapper::add_echoes`], empty between calls (kept
-    /// for their capacity).
-    bands: SpanBands,
+    /// Span buffers of [`Mapper::add_echoes`], one per parallel part of a
+    /// batch, empty between calls (kept for their capacity).
+    parts: Vec<SpanBands>,
 }
 
 /// Bytes of grid per band of [`SpanBands`]: a band's cells stay in the
@@ -167,6 +167,12 @@ const HEADER: u32 = u32::MAX;
 /// ran 3× faster banded; BENCHMARKS.md). Every cell lies in one band and
 /// receives its additions in echo order, so the sums are bit-identical to
 /// adding echo after echo.
+///
+/// Both halves run on rayon's pool: consecutive parts of a batch of echoes
+/// are dealt into one `SpanBands` each at once, then the bands are added at
+/// once, each band replaying the parts in order. A cell still receives its
+/// additions in echo order, so the map is bit-identical whatever the thread
+/// count.
 #[derive(Debug, Clone, Default)]
 pub struct SpanBands {
     /// Rows per band = 2^shift.
@@ -176,8 +182,6 @@ pub struct SpanBands {
     lists: Vec<Vec<(u32, u32)>>,
     /// Weights of the batch's echoes.
     weights: Vec<f64>,
-    /// Upper bound on the spans recorded since the last flush (two per row).
-    pending: usize,
 }
 
 impl SpanBands {
@@ -205,11 +209,9 @@ impl SpanBands {
         let k = self.weights.len() as u32;
         self.weights.push(w);
         let (nx, shift) = (spec.nx, self.shift);
-        let mut rows_dealt = 0;
         let lists = &mut self.lists;
         let mut records = [(0u32, 0u32); 2 * BLOCK + 1];
         for_each_entered_block(e, spec, |b| {
-            rows_dealt += b.len;
             // The block's rows by band (a block may straddle two).
             let mut k0 = 0;
             while k0 < b.len {
@@ -232,24 +234,30 @@ impl SpanBands {
                 k0 = k1;
             }
         });
-        self.pending += 2 * rows_dealt;
     }
 
-    /// Adds every recorded span to `data`, band by band, empties the
-    /// buffers, and returns the number of cells updated.
-    fn flush(&mut self, spec: &GridSpec, data: &mut [f64]) -> u64 {
-        let band_cells = spec.nx << self.shift;
-        let mut n = 0;
-        for (b, list) in self.lists.iter_mut().enumerate() {
-            let start = b * band_cells;
-            let cells = &mut data[start..(start + band_cells).min(spec.len())];
-            n += replay(list, &self.weights, cells);
-            list.clear();
-        }
+    /// Empties the buffers, keeping their capacity.
+    fn clear(&mut self) {
+        self.lists.iter_mut().for_each(Vec::clear);
         self.weights.clear();
-        self.pending = 0;
-        n
     }
+}
+
+/// Adds every span recorded in `parts` to `data`, band by band (bands in
+/// parallel, each replaying the parts in order), empties the parts, and
+/// returns the number of cells updated.
+fn flush_parts(parts: &mut [SpanBands], spec: &GridSpec, data: &mut [f64]) -> u64 {
+    use rayon::prelude::*;
+    let Some(first) = parts.first() else { return 0 };
+    let band_cells = spec.nx << first.shift;
+    let parts_ref = &*parts;
+    let n = data
+        .par_chunks_mut(band_cells)
+        .enumerate()
+        .map(|(b, cells)| parts_ref.iter().map(|p| replay(&p.lists[b], &p.weights, cells)).sum::<u64>())
+        .sum();
+    parts.iter_mut().for_each(SpanBands::clear);
+    n
 }
 
 /// Spans up to this long are added with one fixed-width, branch-free write.
@@ -307,7 +315,7 @@ impl AccumulationMapper {
     /// [`MappingParams::validate`].
     pub fn new(spec: GridSpec, params: MappingParams) -> Result<Self, CoreError> {
         params.validate()?;
-        Ok(Self { grid: Grid::zeros(spec), params, cells_updated: 0, max_cell_bound: 0.0, bands: SpanBands::default() })
+        Ok(Self { grid: Grid::zeros(spec), params, cells_updated: 0, max_cell_bound: 0.0, parts: Vec::new() })
     }
 
     /// Total cell updates so far (for benchmarks and progress reporting).
@@ -371,24 +379,64 @@ impl AccumulationMapper {
 
     /// [`Mapper::add_echoes`] through [`SpanBands`]: the same cells get the
     /// same additions in the same order as echo-by-echo accumulation.
+    /// Echoes are checked first, in order (the map gets every echo before
+    /// the first bad one, like [`Mapper::add_echo`]), then mapped in batches
+    /// of at most [`MAX_PENDING_SPANS`] spans (two per row a bounding box
+    /// covers), each batch split over rayon's threads.
     fn add_banded(&mut self, echoes: &[Echo]) -> Result<(), CoreError> {
+        use rayon::prelude::*;
         let spec = self.grid.spec;
         let mut result = Ok(());
+        let mut checked: Vec<(Ellipse, f64, usize)> = Vec::with_capacity(echoes.len());
         for echo in echoes {
             match self.check(echo) {
-                Ok(e) => self.bands.deal(&e, &spec, echo.weight),
+                Ok(e) => checked.push((e, echo.weight, 2 * rows_covered(&e, &spec))),
                 Err(err) => {
                     result = Err(err);
                     break;
                 }
             }
-            if self.bands.pending >= MAX_PENDING_SPANS || self.bands.weights.len() >= MAX_PENDING_SPANS {
-                self.cells_updated += self.bands.flush(&spec, &mut self.grid.data);
-            }
         }
-        self.cells_updated += self.bands.flush(&spec, &mut self.grid.data);
+        let n_parts = rayon::current_num_threads().max(1);
+        let template = self.parts.first().cloned().unwrap_or_default();
+        self.parts.resize_with(n_parts, || template.clone());
+        self.parts.truncate(n_parts);
+        for part in &mut self.parts {
+            part.prepare(&spec);
+        }
+        let mut rest = &checked[..];
+        while !rest.is_empty() {
+            // The batch: echoes while their spans fit (at least one).
+            let mut spans = 0;
+            let len = rest
+                .iter()
+                .position(|c| {
+                    spans += c.2;
+                    spans > MAX_PENDING_SPANS
+                })
+                .unwrap_or(rest.len())
+                .clamp(1, MAX_PENDING_SPANS);
+            let (batch, tail) = rest.split_at(len);
+            rest = tail;
+            let per_part = batch.len().div_ceil(n_parts);
+            self.parts.par_iter_mut().zip(batch.par_chunks(per_part)).for_each(|(part, chunk)| {
+                for (e, w, _) in chunk {
+                    part.deal(e, &spec, *w);
+                }
+            });
+            self.cells_updated += flush_parts(&mut self.parts, &spec, &mut self.grid.data);
+        }
         result
     }
+}
+
+/// Grid rows the bounding box of `e` covers (an upper bound on the rows the
+/// rasteriser enters).
+fn rows_covered(e: &Ellipse, spec: &GridSpec) -> usize {
+    let (lo, hi) = e.bbox();
+    let row = |y: f64| ((y - spec.y_min_m) / spec.cell_m).floor().clamp(-1.0, spec.ny as f64);
+    let (j0, j1) = (row(lo.y), row(hi.y));
+    if j1 < 0.0 || j0 >= spec.ny as f64 { 0 } else { (j1.min(spec.ny as f64 - 1.0) - j0.max(0.0)) as usize + 1 }
 }
 
 impl Mapper for AccumulationMapper {
@@ -396,7 +444,7 @@ impl Mapper for AccumulationMapper {
         self.accumulate(echo)
     }
     fn add_echoes(&mut self, echoes: &[Echo]) -> Result<(), CoreError> {
-        if self.params.ellipse_points > 0 || self.bands.prepare(&self.grid.spec).is_none() {
+        if self.params.ellipse_points > 0 || SpanBands::default().prepare(&self.grid.spec).is_none() {
             return echoes.iter().try_for_each(|e| self.accumulate(e));
         }
         self.add_banded(echoes)
@@ -454,18 +502,33 @@ pub fn threshold(data: &mut [f64], keep_top: f64, min_of_max: f64) {
 /// data (`None` when no cell is non-zero: nothing changes). `scratch`
 /// receives the non-zero values (kept for its capacity).
 pub fn threshold_floor(data: &[f64], keep_top: f64, min_of_max: f64, scratch: &mut Vec<f64>) -> Option<f64> {
+    use rayon::prelude::*;
+    // The non-zero cells and the maximum, chunk by chunk on rayon's threads
+    // (issue 14); the quantile is a value, whatever order they come in.
+    let chunks: Vec<(Vec<f64>, f64)> = data
+        .par_chunks(SCAN_CHUNK)
+        .map(|c| {
+            let max = c.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            (c.iter().copied().filter(|v| *v != 0.0).collect(), max)
+        })
+        .collect();
     scratch.clear();
-    scratch.extend(data.iter().copied().filter(|v| *v != 0.0));
+    let mut max = f64::NEG_INFINITY;
+    for (nonzero, m) in &chunks {
+        scratch.extend_from_slice(nonzero);
+        max = max.max(*m);
+    }
     if scratch.is_empty() {
         return None;
     }
     let n = scratch.len();
     let rank = (((1.0 - keep_top) * n as f64).floor() as usize).min(n - 1);
     let (_, q, _) = scratch.select_nth_unstable_by(rank, f64::total_cmp);
-    let quantile = *q;
-    let max = data.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-    Some(quantile.max(min_of_max * max))
+    Some(q.max(min_of_max * max))
 }
+
+/// Cells per parallel task of the whole-grid scans (256 KiB of f64).
+const SCAN_CHUNK: usize = 1 << 15;
 
 /// Running maximum over windows of `2r+1` elements (van Herk / Gil–Werman):
 /// three max operations per element whatever `r` is. `src` is padded with `r`
@@ -530,11 +593,9 @@ pub fn local_maxima_above(g: &Grid, r: usize, floor: f64, scratch: &mut Vec<f64>
         return Vec::new();
     }
     let r = r.min(nx.max(ny));
-    let survivors = g.data.iter().filter(|&&v| v >= floor && v > 0.0).count();
-    let candidates = if survivors <= g.data.len() / 8 {
-        sparse_candidates(g, r, floor)
-    } else {
-        dense_candidates(g, r, floor, scratch)
+    let candidates = match survivors(g, floor, g.data.len() / 8) {
+        Some(cells) => sparse_candidates(g, r, cells),
+        None => dense_candidates(g, r, floor, scratch),
     };
     thin_plateaus(g, r, candidates)
 }
@@ -542,20 +603,38 @@ pub fn local_maxima_above(g: &Grid, r: usize, floor: f64, scratch: &mut Vec<f64>
 /// Cells `(i, j, value)` by bucket `(i, j) / (r + 1)`.
 type CellBuckets = std::collections::HashMap<(usize, usize), Vec<(usize, usize, f64)>>;
 
-/// Cells `(i, j, value)` at or above `floor` and positive with no larger
-/// cell at or above `floor` within `r` (Chebyshev), in raster order, by
-/// buckets of `r + 1` cells.
-fn sparse_candidates(g: &Grid, r: usize, floor: f64) -> Vec<(usize, usize, f64)> {
+/// The cells `(i, j, value)` at or above `floor` and positive, in raster
+/// order, or `None` when they are more than `limit` (1/8 of the grid:
+/// then [`dense_candidates`] is faster). Scanned in parallel chunks.
+fn survivors(g: &Grid, floor: f64, limit: usize) -> Option<Vec<(usize, usize, f64)>> {
+    use rayon::prelude::*;
     let nx = g.spec.nx;
+    let keep = |v: f64| v >= floor && v > 0.0;
+    let count: usize = g.data.par_chunks(SCAN_CHUNK).map(|c| c.iter().filter(|&&v| keep(v)).count()).sum();
+    if count > limit {
+        return None;
+    }
+    let chunks: Vec<Vec<(usize, usize, f64)>> = g
+        .data
+        .par_chunks(SCAN_CHUNK)
+        .enumerate()
+        .map(|(c, cells)| {
+            let base = c * SCAN_CHUNK;
+            let kept = cells.iter().enumerate().filter(|&(_, &v)| keep(v));
+            kept.map(|(k, &v)| ((base + k) % nx, (base + k) / nx, v)).collect()
+        })
+        .collect();
+    Some(chunks.concat())
+}
+
+/// The `cells` (from [`survivors`]) with no larger one within `r`
+/// (Chebyshev), in raster order, by buckets of `r + 1` cells.
+fn sparse_candidates(g: &Grid, r: usize, mut cells: Vec<(usize, usize, f64)>) -> Vec<(usize, usize, f64)> {
+    debug_assert!(cells.iter().all(|&(i, j, _)| i < g.spec.nx && j < g.spec.ny));
     let bucket = r + 1;
     let mut buckets = CellBuckets::default();
-    let mut cells = Vec::new();
-    for (k, &v) in g.data.iter().enumerate() {
-        if v >= floor && v > 0.0 {
-            let (i, j) = (k % nx, k / nx);
-            cells.push((i, j, v));
-            buckets.entry((i / bucket, j / bucket)).or_default().push((i, j, v));
-        }
+    for &(i, j, v) in &cells {
+        buckets.entry((i / bucket, j / bucket)).or_default().push((i, j, v));
     }
     // Largest first, so a scan stops at the first cell not larger.
     for list in buckets.values_mut() {
@@ -777,7 +856,7 @@ mod tests {
             let cells = |h: Vec<Highlight>| h.iter().map(|h| g.spec.cell_of(h.pos).unwrap()).collect::<Vec<_>>();
             proptest::prop_assert_eq!(cells(local_maxima_above(&g, r, floor, &mut Vec::new())), want.clone());
             // Both candidate searches, whichever the survivors' count picks.
-            let sparse = thin_plateaus(&g, r, sparse_candidates(&g, r, floor));
+            let sparse = thin_plateaus(&g, r, sparse_candidates(&g, r, survivors(&g, floor, usize::MAX).unwrap()));
             let dense = thin_plateaus(&g, r, dense_candidates(&g, r, floor, &mut Vec::new()));
             proptest::prop_assert_eq!(cells(sparse), want.clone());
             proptest::prop_assert_eq!(cells(dense), want);
@@ -871,6 +950,23 @@ mod tests {
             assert_eq!(bits(&banded.grid().data), bits(&want), "banded, grid {k}");
             assert_eq!(bits(&single.grid().data), bits(&want), "per echo, grid {k}");
             assert_eq!((banded.cells_updated(), single.cells_updated()), (cells, cells));
+        }
+    }
+
+    #[test]
+    fn banded_accumulation_is_bit_identical_whatever_the_thread_count() {
+        let spec = GridSpec { x_min_m: -50.0, y_min_m: -50.0, cell_m: 0.1, nx: 1000, ny: 1000 };
+        let echoes = random_echoes(500, 99);
+        let (want, cells) = reference_grid(spec, &echoes);
+        for threads in [1, 2, 3, 8] {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            let m = pool.install(|| {
+                let mut m = AccumulationMapper::new(spec, MappingParams::default()).unwrap();
+                m.add_echoes(&echoes).unwrap();
+                m
+            });
+            assert_eq!(bits(&m.grid().data), bits(&want), "{threads} threads");
+            assert_eq!(m.cells_updated(), cells, "{threads} threads");
         }
     }
 

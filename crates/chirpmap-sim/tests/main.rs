@@ -7,4 +7,5 @@
 mod fuzz_resolve;
 mod oracle;
 mod physics;
+mod threads;
 mod validation;
