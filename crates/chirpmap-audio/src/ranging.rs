@@ -168,6 +168,8 @@ pub struct Ranger {
     spectra: HashMap<usize, Vec<Complex32>>,
     /// Direct-only responses of the template, keyed by method and layout.
     models: HashMap<(Method, usize, usize), Vec<f64>>,
+    /// Gram matrices of the gap method's direct-sound fit, by frame offset and length.
+    grams: HashMap<(usize, usize), [[f64; 3]; 3]>,
 }
 
 /// Frames per chirp in the gap method (evenly spread; the median is taken).
@@ -287,7 +289,15 @@ impl Ranger {
         if lo + 3 >= hi {
             return None;
         }
-        if SUBTRACT_DIRECT && let Some(res) = direct_residual(seg, tpl, off, frame) {
+        if !self.grams.contains_key(&(off, frame))
+            && let Some(g) = direct_gram(tpl, off, frame)
+        {
+            self.grams.insert((off, frame), g);
+        }
+        if SUBTRACT_DIRECT
+            && let Some(g) = self.grams.get(&(off, frame)).copied()
+            && let Some(res) = direct_residual(seg, tpl, off, frame, &g)
+        {
             // The direct sound removed in the time domain: the reflection's
             // peak no longer leans on the direct's window leakage. Its
             // position is measured against the template's own peak in this
@@ -505,20 +515,36 @@ impl Ranger {
 /// reflected peak (see [`direct_residual`]).
 const SUBTRACT_DIRECT: bool = true;
 
-/// `seg` minus its least-squares fit by the template's frame
-/// `tpl.real[off−1+k ..]`, k = 0, 1, 2 (three one-sample shifts absorb the
-/// direct arrival's sub-sample onset error). `None` at the template's edges.
-fn direct_residual(seg: &[f32], tpl: &ChirpTemplate, off: usize, frame: usize) -> Option<Vec<f32>> {
+/// The three regressors of [`direct_residual`] for template offset `off`
+/// (`tpl.real[off−1+k ..]`, k = 0, 1, 2) and their Gram matrix; `None` at
+/// the template's edges. The Gram matrix depends only on the template, so
+/// [`Ranger`] computes it once per frame position.
+fn direct_gram(tpl: &ChirpTemplate, off: usize, frame: usize) -> Option<[[f64; 3]; 3]> {
     let base = off.checked_sub(1)?;
     let regs: Vec<&[f32]> = (0..3).map(|k| tpl.real.get(base + k..base + k + frame)).collect::<Option<_>>()?;
-    let dot = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(x, y)| f64::from(*x) * f64::from(*y)).sum::<f64>();
     let mut g = [[0.0f64; 3]; 3];
+    for i in 0..3 {
+        for j in 0..3 {
+            g[i][j] = dot_f64(regs[i], regs[j]);
+        }
+    }
+    Some(g)
+}
+
+fn dot_f64(a: &[f32], b: &[f32]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| f64::from(*x) * f64::from(*y)).sum::<f64>()
+}
+
+/// `seg` minus its least-squares fit by the template's frame
+/// `tpl.real[off−1+k ..]`, k = 0, 1, 2 (three one-sample shifts absorb the
+/// direct arrival's sub-sample onset error), `g` their Gram matrix
+/// ([`direct_gram`]). `None` at the template's edges.
+fn direct_residual(seg: &[f32], tpl: &ChirpTemplate, off: usize, frame: usize, g: &[[f64; 3]; 3]) -> Option<Vec<f32>> {
+    let base = off.checked_sub(1)?;
+    let regs: Vec<&[f32]> = (0..3).map(|k| tpl.real.get(base + k..base + k + frame)).collect::<Option<_>>()?;
     let mut r = [0.0f64; 3];
     for i in 0..3 {
-        r[i] = dot(regs[i], seg);
-        for j in 0..3 {
-            g[i][j] = dot(regs[i], regs[j]);
-        }
+        r[i] = dot_f64(regs[i], seg);
     }
     let c = crate::filter::solve_linear(g.iter().map(|row| row.to_vec()).collect(), r.to_vec())?;
     Some(

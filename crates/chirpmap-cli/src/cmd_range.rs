@@ -270,47 +270,60 @@ fn plot_chirp(
 ) -> Result<()> {
     let fs = prep.sample_rate_hz;
     let tpl = &prep.tpl;
-    let mut cache = FftCache::default();
     let pre = (0.05 * fs) as usize;
     let s0 = onset.saturating_sub(pre);
     let s1 = (onset + tpl.len() + (0.15 * fs) as usize).min(prep.x.len());
     let frame = Ranger::gap_frame_len(tpl);
-    let nfft = (frame * 4).next_power_of_two();
-    let hop = (frame / 2).max(1);
-    let frames = stft_magnitude(&mut cache, &prep.x[s0..s1], frame, hop, nfft);
     let f_max = tpl.chirp.f_start_hz().max(tpl.chirp.f_end_hz()) * 1.15;
-    render_spectrogram(
-        &out.path(fmt.spectrogram())?,
-        &format!("chirp {} of {count}: spectrogram", index + 1),
-        &frames,
-        (window_start + s0) as f64 / fs,
-        hop as f64 / fs,
-        fs / nfft as f64,
-        f_max.min(fs / 2.0),
-    )?;
+    let (spectrogram_path, spectrum_path) = (out.path(fmt.spectrogram())?, out.path(fmt.spectrum())?);
+    // The two figures are independent: drawn at the same time.
+    let spectrogram = || {
+        let mut cache = FftCache::default();
+        let nfft = (frame * 4).next_power_of_two();
+        let hop = (frame / 2).max(1);
+        let frames = stft_magnitude(&mut cache, &prep.x[s0..s1], frame, hop, nfft);
+        render_spectrogram(
+            &spectrogram_path,
+            &format!("chirp {} of {count}: spectrogram", index + 1),
+            &frames,
+            (window_start + s0) as f64 / fs,
+            hop as f64 / fs,
+            fs / nfft as f64,
+            f_max.min(fs / 2.0),
+        )
+    };
     // Amplitude spectrum of the middle frame of the chirp.
-    let off = (tpl.len() / 2).min(tpl.len().saturating_sub(frame));
-    let nfft = (frame * 8).next_power_of_two();
-    let seg = prep.x.get(onset + off..onset + off + frame).unwrap_or(&[]);
-    let sg = SavitzkyGolay::new((nfft / frame) | 1, 2)?;
-    let spec = sg.smooth(&magnitude_spectrum(&mut cache, seg, nfft));
-    let bin_hz = fs / nfft as f64;
-    let f_d = tpl.chirp.freq_at((off as f64 + 0.5 * frame as f64) / fs);
-    let f_r = f_d.zip(est).map(|(f, e)| f + tpl.direction() * e.delta_f_hz);
-    let centre = f_d.unwrap_or(0.5 * f_max);
-    let span = est.map_or(1000.0, |e| e.delta_f_hz.abs() * 2.5).max(300.0);
-    let (lo, hi) = ((centre - span).max(0.0), (centre + span).min(fs / 2.0));
-    let idx: Vec<usize> = (0..spec.len()).filter(|&k| (lo..=hi).contains(&(k as f64 * bin_hz))).collect();
-    let freqs: Vec<f64> = idx.iter().map(|&k| k as f64 * bin_hz).collect();
-    let amps: Vec<f64> = idx.iter().map(|&k| spec[k]).collect();
-    render_spectrum(
-        &out.path(fmt.spectrum())?,
-        &format!("chirp {} of {count}: frame at {:.3} s into the chirp", index + 1, off as f64 / fs),
-        &freqs,
-        &amps,
-        f_d,
-        f_r,
-    )
+    let spectrum = || {
+        let mut cache = FftCache::default();
+        let off = (tpl.len() / 2).min(tpl.len().saturating_sub(frame));
+        let nfft = (frame * 8).next_power_of_two();
+        let seg = prep.x.get(onset + off..onset + off + frame).unwrap_or(&[]);
+        let sg = SavitzkyGolay::new((nfft / frame) | 1, 2)?;
+        let spec = sg.smooth(&magnitude_spectrum(&mut cache, seg, nfft));
+        let bin_hz = fs / nfft as f64;
+        let f_d = tpl.chirp.freq_at((off as f64 + 0.5 * frame as f64) / fs);
+        let f_r = f_d.zip(est).map(|(f, e)| f + tpl.direction() * e.delta_f_hz);
+        let centre = f_d.unwrap_or(0.5 * f_max);
+        let span = est.map_or(1000.0, |e| e.delta_f_hz.abs() * 2.5).max(300.0);
+        let (lo, hi) = ((centre - span).max(0.0), (centre + span).min(fs / 2.0));
+        let idx: Vec<usize> = (0..spec.len()).filter(|&k| (lo..=hi).contains(&(k as f64 * bin_hz))).collect();
+        let freqs: Vec<f64> = idx.iter().map(|&k| k as f64 * bin_hz).collect();
+        let amps: Vec<f64> = idx.iter().map(|&k| spec[k]).collect();
+        render_spectrum(
+            &spectrum_path,
+            &format!("chirp {} of {count}: frame at {:.3} s into the chirp", index + 1, off as f64 / fs),
+            &freqs,
+            &amps,
+            f_d,
+            f_r,
+        )
+    };
+    std::thread::scope(|scope| {
+        let first = scope.spawn(spectrogram);
+        let second = spectrum();
+        first.join().map_err(|_| anyhow::anyhow!("drawing the spectrogram failed"))??;
+        second
+    })
 }
 
 /// Reads one channel of a WAV (clipping warned about, silence refused with a hint).
