@@ -26,18 +26,17 @@ const CROSSING_SAMPLES: usize = 96;
 /// Crossings of two ellipses: sign changes of `b`'s focal excess along `a`,
 /// refined by bisection in eccentric anomaly.
 pub(crate) fn crossings(a: &Ellipse, b: &Ellipse, out: &mut Vec<Point>) {
-    let step = std::f64::consts::TAU / CROSSING_SAMPLES as f64;
-    let g = |u: f64| b.focal_excess(a.point_at(u));
-    let mut u0 = 0.0;
-    let mut g0 = g(u0);
-    for s in 1..=CROSSING_SAMPLES {
-        let u1 = s as f64 * step;
-        let g1 = g(u1);
-        if (g0 < 0.0) != (g1 < 0.0) {
-            let (mut lo, mut hi, glo) = (u0, u1, g0);
+    let samples = sample_angles();
+    let g = |u: f64| inside(b, a.point_at(u));
+    let mut g0 = inside(b, point_at_sc(a, samples[0]));
+    for (s, &sc) in samples.iter().enumerate().skip(1) {
+        let u1 = s as f64 * STEP;
+        let g1 = inside(b, point_at_sc(a, sc));
+        if g0 != g1 {
+            let (mut lo, mut hi) = ((s - 1) as f64 * STEP, u1);
             for _ in 0..40 {
                 let mid = 0.5 * (lo + hi);
-                if (g(mid) < 0.0) == (glo < 0.0) {
+                if g(mid) == g0 {
                     lo = mid;
                 } else {
                     hi = mid;
@@ -45,9 +44,40 @@ pub(crate) fn crossings(a: &Ellipse, b: &Ellipse, out: &mut Vec<Point>) {
             }
             out.push(a.point_at(0.5 * (lo + hi)));
         }
-        u0 = u1;
         g0 = g1;
     }
+}
+
+/// Sample spacing in eccentric anomaly (rad).
+const STEP: f64 = std::f64::consts::TAU / CROSSING_SAMPLES as f64;
+
+/// `(sin u, cos u)` of the sample angles `u = s·STEP`, `s = 0..=CROSSING_SAMPLES`,
+/// computed once (the same values `f64::sin_cos` gives at each call).
+fn sample_angles() -> &'static [(f64, f64); CROSSING_SAMPLES + 1] {
+    static TABLE: std::sync::OnceLock<[(f64, f64); CROSSING_SAMPLES + 1]> = std::sync::OnceLock::new();
+    TABLE.get_or_init(|| std::array::from_fn(|s| (s as f64 * STEP).sin_cos()))
+}
+
+/// [`Ellipse::point_at`] from `(sin u, cos u)`: the same arithmetic.
+#[inline]
+fn point_at_sc(e: &Ellipse, (su, cu): (f64, f64)) -> Point {
+    let (x, y) = (e.semi_major_m * cu, e.semi_minor_m * su);
+    Point::new(e.center.x + x * e.cos_t - y * e.sin_t, e.center.y + x * e.sin_t + y * e.cos_t)
+}
+
+/// Whether `p` is strictly inside `b` (`b.focal_excess(p) < 0`, the same
+/// answer bit for bit): distances by `sqrt` of the squared norm, within a
+/// few ulps of `hypot`'s, so the sign is certain unless the excess is within
+/// 10⁻¹² of the path length; only then (or on overflow) is it computed as
+/// [`Ellipse::focal_excess`] does, with `hypot`.
+#[inline]
+fn inside(b: &Ellipse, p: Point) -> bool {
+    let (ax, ay) = (p.x - b.focus_a.x, p.y - b.focus_a.y);
+    let (bx, by) = (p.x - b.focus_b.x, p.y - b.focus_b.y);
+    let (da, db) = ((ax * ax + ay * ay).sqrt(), (bx * bx + by * by).sqrt());
+    let major = 2.0 * b.semi_major_m;
+    let g = da + db - major;
+    if g.abs() > 1e-12 * (da + db + major) { g < 0.0 } else { b.focal_excess(p) < 0.0 }
 }
 
 /// One envelope point and the two echoes whose ellipses cross there.
