@@ -439,14 +439,15 @@ fn correlate_pair(
     let (fwd, inv) = plans;
     let nfft = buf.len();
     let s2 = s + step;
-    buf.fill(Complex32::new(0.0, 0.0));
+    // Samples past the stream's end are zeros.
     let mut k = 0;
     for p in kept.pieces(s, s + nfft) {
         for (b, v) in buf[k..k + p.len()].iter_mut().zip(p) {
-            b.re = *v;
+            *b = Complex32::new(*v, 0.0);
         }
         k += p.len();
     }
+    buf[k..].fill(Complex32::new(0.0, 0.0));
     if s2 < n_lags {
         let mut k = 0;
         for p in kept.pieces(s2, s2 + nfft) {
@@ -593,10 +594,15 @@ fn visit_all<R: Send>(
         .with_max_len(1)
         .map_init(Vec::new, |scratch, &(onset, c)| {
             let (w0, w1) = (onset.saturating_sub(w_before), (onset + w_after).min(len));
+            // Only whole windows (a window not kept whole is left to a second read).
+            if w0 < kept.x0 || w1 > kept.end {
+                return None;
+            }
             let w = kept.window(w0, w1, scratch);
             let ncc = ncc_of(&w[onset - w0..(onset + m - w0).min(w.len())], c);
-            (onset, ncc, visit(w, onset - w0))
+            Some((onset, ncc, visit(w, onset - w0)))
         })
+        .flatten()
         .collect()
 }
 
@@ -734,7 +740,6 @@ fn scan_with_cap<S: BlockSource + Send + ?Sized, R: Send>(
         if let Some(p) = st.peaks.as_mut() {
             p.settled(usize::MAX, &mut due);
         }
-        due.retain(|&(o, _)| o.saturating_sub(spans.0) >= kept.x0 && (o + spans.1).min(len) <= kept.end);
         for (onset, ncc, r) in visit_all(&kept, &due, len, m, spans, &ncc_of, v.visit) {
             visits.ncc.insert(onset, ncc);
             visits.results.insert(onset, r);
