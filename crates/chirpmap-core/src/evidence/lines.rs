@@ -199,6 +199,9 @@ fn densest(vals: &[f64], width: f64) -> (usize, f64) {
     (best, mean)
 }
 
+/// Cells per block of the peak search's skip test.
+const PEAK_BLOCK: usize = 32;
+
 /// Kernel terms farther than this many σ from the centre are left out of
 /// the scan's score: each is below e^−36 ≈ 2·10⁻¹⁶ of a term at the centre.
 const KERNEL_CUT_SIGMAS: f64 = 8.5;
@@ -713,6 +716,7 @@ pub(crate) fn find_lines(ctx: &Ctx) -> LinesResult {
     let inv_half: Vec<f64> = half.iter().map(|h| 1.0 / h).collect();
     let mut rho_buf = vec![0.0; tan.len()];
     let window = half.iter().map(|h| (2.0 * h / rho_bin) as usize + 2).max().unwrap_or(1);
+    let inv_bin = 1.0 / rho_bin;
     // Offset of each bin's centre (the same expression as in the loop it
     // replaces, so the same value), padded by a window for the last spans.
     let centres: Vec<f64> = (0..n_rho + window).map(|i| i as f64 * rho_bin - r_max).collect();
@@ -723,8 +727,12 @@ pub(crate) fn find_lines(ctx: &Ctx) -> LinesResult {
         tan.offsets(Point::new(nx, ny), &mut rho_buf);
         let row = &mut acc[t * n_rho..(t + 1) * n_rho];
         for ((&rho, &half), &inv_half) in rho_buf.iter().zip(&half).zip(&inv_half) {
-            let lo = ceil_fast((rho - half + r_max) / rho_bin).max(0.0);
-            let hi = floor_fast((rho + half + r_max) / rho_bin).min(n_rho as f64 - 1.0);
+            // By a multiplication rather than a division: rounding can move
+            // `lo` or `hi` by one only when a bin centre lies within an ulp
+            // of the band's edge, where its weight is 0 or ~1e-16 (and the
+            // window keeps a spare cell past the band either way).
+            let lo = ceil_fast((rho - half + r_max) * inv_bin).max(0.0);
+            let hi = floor_fast((rho + half + r_max) * inv_bin).min(n_rho as f64 - 1.0);
             if lo > hi {
                 continue;
             }
@@ -745,28 +753,33 @@ pub(crate) fn find_lines(ctx: &Ctx) -> LinesResult {
     let mut peaks: Vec<(f32, usize, usize)> = Vec::new();
     let min_votes = p.min_support as f32;
     for t in 0..k_bins {
-        for b in 0..n_rho {
-            let v = acc[t * n_rho + b];
-            if v < min_votes {
-                continue;
-            }
-            let mut is_max = true;
-            'nb: for dt in [k_bins - 1, 0, 1] {
-                let tt = (t + dt) % k_bins;
-                for bb in b.saturating_sub(1)..=(b + 1).min(n_rho - 1) {
-                    if (tt, bb) == (t, b) {
-                        continue;
-                    }
-                    let w = acc[tt * n_rho + bb];
-                    let earlier = tt < t || (tt == t && bb < b);
-                    if w > v || (w == v && earlier) {
-                        is_max = false;
-                        break 'nb;
+        // Most cells are far below the threshold: a block none of whose
+        // cells reaches it (a branch-free maximum) is skipped at once.
+        let blocks = acc[t * n_rho..(t + 1) * n_rho].chunks(PEAK_BLOCK).enumerate();
+        for (blk, block) in blocks.filter(|(_, c)| c.iter().fold(f32::NEG_INFINITY, |m, &v| m.max(v)) >= min_votes) {
+            for (i, &v) in block.iter().enumerate() {
+                let b = blk * PEAK_BLOCK + i;
+                if v < min_votes {
+                    continue;
+                }
+                let mut is_max = true;
+                'nb: for dt in [k_bins - 1, 0, 1] {
+                    let tt = (t + dt) % k_bins;
+                    for bb in b.saturating_sub(1)..=(b + 1).min(n_rho - 1) {
+                        if (tt, bb) == (t, b) {
+                            continue;
+                        }
+                        let w = acc[tt * n_rho + bb];
+                        let earlier = tt < t || (tt == t && bb < b);
+                        if w > v || (w == v && earlier) {
+                            is_max = false;
+                            break 'nb;
+                        }
                     }
                 }
-            }
-            if is_max {
-                peaks.push((v, t, b));
+                if is_max {
+                    peaks.push((v, t, b));
+                }
             }
         }
     }
