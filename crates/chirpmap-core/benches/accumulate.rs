@@ -101,9 +101,10 @@ fn interleaved(rounds: usize) {
         *v = std::hint::black_box(0.0);
     }
     let mut mapper = AccumulationMapper::new(s, MappingParams::default()).expect("valid mapper");
-    // The mapper spreads its work over rayon's threads; one thread here, so
-    // that this thread's CPU time is the whole pass's (the peers are serial).
-    let one_thread = rayon::ThreadPoolBuilder::new().num_threads(1).build().expect("a thread pool");
+    // The mapper spreads its work over rayon's threads; here over one, this
+    // thread, so that its CPU time is the whole pass's (the peers are serial).
+    let one_thread =
+        rayon::ThreadPoolBuilder::new().num_threads(1).use_current_thread().build().expect("a thread pool");
     type Pass<'a> = Box<dyn FnMut(&mut Vec<f64>) -> u64 + 'a>;
     let mut passes: Vec<(&str, Pass)> = vec![
         (

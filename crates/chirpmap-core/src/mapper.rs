@@ -379,24 +379,12 @@ impl AccumulationMapper {
 
     /// [`Mapper::add_echoes`] through [`SpanBands`]: the same cells get the
     /// same additions in the same order as echo-by-echo accumulation.
-    /// Echoes are checked first, in order (the map gets every echo before
-    /// the first bad one, like [`Mapper::add_echo`]), then mapped in batches
-    /// of at most [`MAX_PENDING_SPANS`] spans (two per row a bounding box
-    /// covers), each batch split over rayon's threads.
+    /// Echoes are checked in order (the map gets every echo before the
+    /// first bad one, like [`Mapper::add_echo`]) and mapped in batches of at
+    /// most [`MAX_PENDING_SPANS`] spans (two per row a bounding box covers),
+    /// each batch split over rayon's threads.
     fn add_banded(&mut self, echoes: &[Echo]) -> Result<(), CoreError> {
-        use rayon::prelude::*;
         let spec = self.grid.spec;
-        let mut result = Ok(());
-        let mut checked: Vec<(Ellipse, f64, usize)> = Vec::with_capacity(echoes.len());
-        for echo in echoes {
-            match self.check(echo) {
-                Ok(e) => checked.push((e, echo.weight, 2 * rows_covered(&e, &spec))),
-                Err(err) => {
-                    result = Err(err);
-                    break;
-                }
-            }
-        }
         let n_parts = rayon::current_num_threads().max(1);
         let template = self.parts.first().cloned().unwrap_or_default();
         self.parts.resize_with(n_parts, || template.clone());
@@ -404,29 +392,46 @@ impl AccumulationMapper {
         for part in &mut self.parts {
             part.prepare(&spec);
         }
-        let mut rest = &checked[..];
-        while !rest.is_empty() {
-            // The batch: echoes while their spans fit (at least one).
-            let mut spans = 0;
-            let len = rest
-                .iter()
-                .position(|c| {
-                    spans += c.2;
-                    spans > MAX_PENDING_SPANS
-                })
-                .unwrap_or(rest.len())
-                .clamp(1, MAX_PENDING_SPANS);
-            let (batch, tail) = rest.split_at(len);
-            rest = tail;
-            let per_part = batch.len().div_ceil(n_parts);
-            self.parts.par_iter_mut().zip(batch.par_chunks(per_part)).for_each(|(part, chunk)| {
-                for (e, w, _) in chunk {
-                    part.deal(e, &spec, *w);
+        // The batch: checked echoes while their spans fit (the memory of a
+        // batch is bounded whatever the number of echoes).
+        let mut batch: Vec<(Ellipse, f64)> = Vec::new();
+        let mut spans = 0;
+        for echo in echoes {
+            let e = match self.check(echo) {
+                Ok(e) => e,
+                Err(err) => {
+                    self.add_batch(&batch);
+                    return Err(err);
                 }
-            });
-            self.cells_updated += flush_parts(&mut self.parts, &spec, &mut self.grid.data);
+            };
+            let rows = 2 * rows_covered(&e, &spec);
+            if !batch.is_empty() && (spans + rows > MAX_PENDING_SPANS || batch.len() >= MAX_PENDING_SPANS) {
+                self.add_batch(&batch);
+                batch.clear();
+                spans = 0;
+            }
+            batch.push((e, echo.weight));
+            spans += rows;
         }
-        result
+        self.add_batch(&batch);
+        Ok(())
+    }
+
+    /// Deals `batch` into one part per thread (consecutive echoes each), then
+    /// adds every part's spans band by band.
+    fn add_batch(&mut self, batch: &[(Ellipse, f64)]) {
+        use rayon::prelude::*;
+        if batch.is_empty() {
+            return;
+        }
+        let spec = self.grid.spec;
+        let per_part = batch.len().div_ceil(self.parts.len());
+        self.parts.par_iter_mut().zip(batch.par_chunks(per_part)).for_each(|(part, chunk)| {
+            for (e, w) in chunk {
+                part.deal(e, &spec, *w);
+            }
+        });
+        self.cells_updated += flush_parts(&mut self.parts, &spec, &mut self.grid.data);
     }
 }
 
