@@ -135,6 +135,22 @@ impl Tangents {
     fn len(&self) -> usize {
         self.a2.len()
     }
+    /// The entries of `set`, in its order (same values, so the same offsets).
+    fn subset(&self, set: &[usize]) -> Tangents {
+        let pick = |v: &[f64]| set.iter().map(|&k| v[k]).collect::<Vec<f64>>();
+        Tangents {
+            cos_t: pick(&self.cos_t),
+            sin_t: pick(&self.sin_t),
+            a2: pick(&self.a2),
+            b2: pick(&self.b2),
+            cx: pick(&self.cx),
+            cy: pick(&self.cy),
+            tau: pick(&self.tau),
+            sigma: pick(&self.sigma),
+            w: pick(&self.w),
+            lip: pick(&self.lip),
+        }
+    }
     /// Far tangent offset of echo `k` and its derivative in the normal
     /// angle, `n⊥·c + (b² − a²)(n·u)(n·v)/h`.
     #[inline]
@@ -214,6 +230,8 @@ const KERNEL_CUT_SIGMAS: f64 = 8.5;
 struct SortedOffsets {
     order: Vec<usize>,
     vals: Vec<f64>,
+    /// Offsets in set order (scratch).
+    raw: Vec<f64>,
 }
 
 impl SortedOffsets {
@@ -221,9 +239,13 @@ impl SortedOffsets {
         self.order.clear();
         self.order.extend(0..len);
     }
-    fn at(&mut self, tan: &Tangents, set: &[usize], n: Point) {
+    /// Sorts the offsets at `n` of the echoes of `local` (a
+    /// [`Tangents::subset`], so computed in one straight loop).
+    fn at(&mut self, local: &Tangents, n: Point) {
+        self.raw.resize(local.len(), 0.0);
+        local.offsets(n, &mut self.raw);
         self.vals.clear();
-        self.vals.extend(self.order.iter().map(|&i| tan.offset(set[i], n)));
+        self.vals.extend(self.order.iter().map(|&i| self.raw[i]));
         for i in 1..self.vals.len() {
             let (v, o) = (self.vals[i], self.order[i]);
             let mut j = i;
@@ -420,16 +442,17 @@ fn refine(ctx: &Ctx, tan: &Tangents, theta0: f64, rho0: f64, origin: Point, bin:
         let cut = KERNEL_CUT_SIGMAS * sig.iter().copied().fold(0.0, f64::max);
         let lo = theta - 2.0 * bin;
         sorted.reset(set0.len());
+        let local = tan.subset(&set0);
         let score_at = |s: usize, sorted: &mut SortedOffsets| -> (f64, f64) {
             let th = lo + step * s as f64;
-            sorted.at(tan, &set0, Point::from_angle(th));
+            sorted.at(&local, Point::from_angle(th));
             let vals = &sorted.vals;
             let (_, centre) = densest(vals, width);
             let first = vals.partition_point(|&r| r < centre - cut);
             let last = vals.partition_point(|&r| r <= centre + cut);
             let score: f64 = (first..last)
                 .map(|i| {
-                    let x = (vals[i] - centre) / tan.sigma[set0[sorted.order[i]]];
+                    let x = (vals[i] - centre) / local.sigma[sorted.order[i]];
                     (-0.5 * x * x).exp()
                 })
                 .sum();
