@@ -102,10 +102,16 @@ fn occupancy_divisor(grid: &Grid, values: MapValues) -> Result<f64> {
             None => Ok(1.0),
         },
         MapValues::Evidence => {
-            if let Some((k, &v)) = grid.data.iter().enumerate().find(|(_, v)| !(v.is_finite() && **v >= 0.0)) {
-                return Err(bad(k, v, "finite non-negative evidence"));
+            // One branch-free pass (it vectorises) for the maximum and whether
+            // any value is negative, infinite or NaN; the culprit is looked
+            // up only then.
+            let ok = |v: f64| (0.0..=f64::MAX).contains(&v);
+            let (max, all_ok) =
+                grid.data.iter().fold((0.0f64, true), |(m, all), &v| (if v > m { v } else { m }, all & ok(v)));
+            match grid.data.iter().position(|&v| !all_ok && !ok(v)) {
+                Some(k) => Err(bad(k, grid.data[k], "finite non-negative evidence")),
+                None => Ok(max),
             }
-            Ok(grid.data.iter().copied().fold(0.0, f64::max))
         }
     }
 }
@@ -243,6 +249,8 @@ mod tests {
         let e = ros_map(&grid(2, 1, vec![1.0, -1.0]), MapValues::Evidence, "m").unwrap_err();
         assert!(e.to_string().contains("cell (1, 0)"), "{e}");
         assert!(ros_map(&grid(2, 1, vec![0.5, f64::NAN]), MapValues::Evidence, "m").is_err());
+        let e = ros_map(&grid(3, 1, vec![0.5, 2.0, f64::INFINITY]), MapValues::Evidence, "m").unwrap_err();
+        assert!(e.to_string().contains("cell (2, 0)"), "{e}");
         assert!(ros_map(&grid(2, 1, vec![0.5, 1.5]), MapValues::Probability, "m").is_err());
         assert!(ros_map(&grid(2, 1, vec![0.5, 1.5]), MapValues::Evidence, "m").is_ok());
     }
