@@ -60,10 +60,6 @@ fn tau(ctx: &Ctx, k: usize) -> f64 {
     ctx.params.band_sigmas * ctx.preps[k].sigma_m
 }
 
-fn rho_of(ctx: &Ctx, k: usize, theta: f64, origin: Point) -> f64 {
-    rho_n(ctx, k, Point::from_angle(theta), origin)
-}
-
 /// Far tangent offset for the unit normal `n` (no trigonometry).
 fn rho_n(ctx: &Ctx, k: usize, n: Point, origin: Point) -> f64 {
     let e = &ctx.preps[k].ellipse;
@@ -348,18 +344,36 @@ impl NearSet {
 /// segment spanned by them.
 fn touches_in_runs(ctx: &Ctx, set: &[usize], theta: f64, rho: f64, origin: Point) -> Vec<(usize, Point)> {
     let n = Point::from_angle(theta);
-    let mut best: std::collections::BTreeMap<usize, (f64, usize, Point)> = Default::default();
-    for &k in set {
-        let (r, p) = far_tangent(&ctx.preps[k].ellipse, n, origin);
-        let res = (r - rho).abs() / ctx.preps[k].sigma_m;
-        let m = ctx.preps[k].meas;
-        if best.get(&m).is_none_or(|b| res < b.0) {
-            best.insert(m, (res, k, p));
+    // (measurement, residual, echo, touch) in set order; stably sorted by
+    // measurement, so the first smallest residual of each wins, as a map
+    // keeping the first strictly smaller one would.
+    let mut cand: Vec<(usize, f64, usize, Point)> = set
+        .iter()
+        .map(|&k| {
+            let (r, p) = far_tangent(&ctx.preps[k].ellipse, n, origin);
+            (ctx.preps[k].meas, (r - rho).abs() / ctx.preps[k].sigma_m, k, p)
+        })
+        .collect();
+    cand.sort_by_key(|c| c.0);
+    let mut best: Vec<(usize, usize, Point)> = Vec::new();
+    let mut best_res = f64::NAN;
+    for &(m, res, k, p) in &cand {
+        match best.last_mut() {
+            Some(b) if b.0 == m => {
+                if res < best_res {
+                    *b = (m, k, p);
+                    best_res = res;
+                }
+            }
+            _ => {
+                best.push((m, k, p));
+                best_res = res;
+            }
         }
     }
     // Runs over (listener, seq); measurements are sorted by (listener, t), so
     // consecutive measurement indices of one listener are consecutive poses.
-    let ms: Vec<usize> = best.keys().copied().collect();
+    let ms: Vec<usize> = best.iter().map(|b| b.0).collect();
     let min_run = ctx.params.min_run as usize;
     let mut keep = Vec::new();
     let mut start = 0;
@@ -370,12 +384,12 @@ fn touches_in_runs(ctx: &Ctx, set: &[usize], theta: f64, rho: f64, origin: Point
         };
         if breaks {
             if i - start >= min_run {
-                keep.extend_from_slice(&ms[start..i]);
+                keep.extend(start..i);
             }
             start = i;
         }
     }
-    keep.iter().filter_map(|m| best.get(m).map(|&(_, k, p)| (k, p))).collect()
+    keep.iter().map(|&i| (best[i].1, best[i].2)).collect()
 }
 
 fn segment_of(theta: f64, rho: f64, origin: Point, touches: &[(usize, Point)]) -> (Point, Point) {
@@ -503,7 +517,8 @@ fn refine(ctx: &Ctx, tan: &Tangents, theta0: f64, rho0: f64, origin: Point, bin:
     let rms_sigmas = if ks.is_empty() {
         f64::INFINITY
     } else {
-        let sum: f64 = ks.iter().map(|&k| ((rho_of(ctx, k, theta, origin) - rho) / ctx.preps[k].sigma_m).powi(2)).sum();
+        let n = Point::from_angle(theta);
+        let sum: f64 = ks.iter().map(|&k| ((rho_n(ctx, k, n, origin) - rho) / ctx.preps[k].sigma_m).powi(2)).sum();
         (sum / ks.len() as f64).sqrt()
     };
     Some(Cand { theta, rho, touches, p0, p1, rms_sigmas })
@@ -517,7 +532,7 @@ fn curved(ctx: &Ctx, c: &Cand, origin: Point) -> bool {
     let n = c.normal();
     let d = Point::new(-n.y, n.x);
     let pts: Vec<(f64, f64)> =
-        c.touches.iter().map(|&(k, p)| (d.dot(p - origin), rho_of(ctx, k, c.theta, origin) - c.rho)).collect();
+        c.touches.iter().map(|&(k, p)| (d.dot(p - origin), rho_n(ctx, k, n, origin) - c.rho)).collect();
     if pts.len() < 4 {
         return false;
     }
