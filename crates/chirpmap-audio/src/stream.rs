@@ -552,7 +552,9 @@ impl Chunks {
             let floor = MIN_PEAK_RATIO as f32 * self.med.floor();
             self.cands.retain(|c| c.1 >= floor);
         }
-        if v >= MIN_PEAK_RATIO as f32 * self.med.floor() {
+        // The final threshold is at least 12 × the median and 1 % of the largest
+        // maximum, which only grows: a chunk below either bound now never passes.
+        if v >= MIN_PEAK_RATIO as f32 * self.med.floor() && v >= 0.01 * self.global {
             self.cands.push((lag, v));
         }
         if let Some(p) = self.peaks.as_mut()
@@ -735,15 +737,21 @@ fn scan_with_cap<S: BlockSource + Send + ?Sized, R: Send>(
         st.feed(&segs, floor);
     }
     st.close(0.0);
-    // The last peaks: every window ends within the samples read.
-    if let Some(v) = visitor.as_ref() {
-        if let Some(p) = st.peaks.as_mut() {
-            p.settled(usize::MAX, &mut due);
-        }
-        for (onset, ncc, r) in visit_all(&kept, &due, len, m, spans, &ncc_of, v.visit) {
-            visits.ncc.insert(onset, ncc);
-            visits.results.insert(onset, r);
-        }
+    if let Some(p) = st.peaks.as_mut() {
+        p.settled(usize::MAX, &mut due);
+    }
+    let Chunks { med, global, mut cands, .. } = st;
+    // The last peaks (every window ends within the samples read) while the median is found.
+    let (median, got) = rayon::join(
+        || med.finish(),
+        || match visitor.as_ref() {
+            Some(v) => visit_all(&kept, &due, len, m, spans, &ncc_of, v.visit),
+            None => Vec::new(),
+        },
+    );
+    for (onset, ncc, r) in got {
+        visits.ncc.insert(onset, ncc);
+        visits.results.insert(onset, r);
     }
     // The rest of the stream (samples after the last lag's template).
     kept.drop_before(usize::MAX, &mut any_nonzero);
@@ -761,8 +769,7 @@ fn scan_with_cap<S: BlockSource + Send + ?Sized, R: Send>(
     if !any_nonzero {
         return Err(AudioError::Silent.into());
     }
-    let Chunks { med, global, mut cands, .. } = st;
-    let median = med.finish().ok_or(ScanError::MedianLost)?;
+    let median = median.ok_or(ScanError::MedianLost)?;
     let ratio = f64::from(global) / f64::from(median).max(1e-30);
     if ratio.is_nan() || ratio < MIN_PEAK_RATIO {
         return Err(
