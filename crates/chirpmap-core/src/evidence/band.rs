@@ -33,19 +33,44 @@ fn row_interval(e: &Ellipse, y: f64) -> Option<(f64, f64)> {
     Some((e.center.x + (-b1 - sq) / (2.0 * qa), e.center.x + (-b1 + sq) / (2.0 * qa)))
 }
 
+/// `x.ceil()` without a libm call where that is exact (|x| < 2⁵², where the
+/// integer conversion is exact; the default x86-64 target has no rounding
+/// instruction), else (huge, infinite or NaN) `f64::ceil`. Only the sign of
+/// a zero result can differ (0 for −0), which no comparison or clamp sees.
+#[inline]
+fn ceil(x: f64) -> f64 {
+    if x.abs() < 4_503_599_627_370_496.0 {
+        let t = x as i64 as f64;
+        if t < x { t + 1.0 } else { t }
+    } else {
+        x.ceil()
+    }
+}
+
+/// `x.floor()`, as [`ceil`].
+#[inline]
+fn floor(x: f64) -> f64 {
+    if x.abs() < 4_503_599_627_370_496.0 {
+        let t = x as i64 as f64;
+        if t > x { t - 1.0 } else { t }
+    } else {
+        x.floor()
+    }
+}
+
 /// Column range `[lo, hi]` of cells whose centres lie in `[x_lo, x_hi]`,
 /// clipped to the grid; `None` if empty.
 fn centre_cols(spec: &GridSpec, x_lo: f64, x_hi: f64) -> Option<(usize, usize)> {
-    let lo = ((x_lo - spec.x_min_m) / spec.cell_m - 0.5).ceil().max(0.0);
-    let hi = ((x_hi - spec.x_min_m) / spec.cell_m - 0.5).floor().min(spec.nx as f64 - 1.0);
+    let lo = ceil((x_lo - spec.x_min_m) / spec.cell_m - 0.5).max(0.0);
+    let hi = floor((x_hi - spec.x_min_m) / spec.cell_m - 0.5).min(spec.nx as f64 - 1.0);
     (lo <= hi).then_some((lo as usize, hi as usize))
 }
 
 /// Rows `[lo, hi]` whose cell centres can meet the ellipse's bounding box.
 fn rows_of(e: &Ellipse, spec: &GridSpec) -> Option<(usize, usize)> {
     let (lo, hi) = e.bbox();
-    let j_lo = ((lo.y - spec.y_min_m) / spec.cell_m - 0.5).ceil().max(0.0);
-    let j_hi = ((hi.y - spec.y_min_m) / spec.cell_m - 0.5).floor().min(spec.ny as f64 - 1.0);
+    let j_lo = ceil((lo.y - spec.y_min_m) / spec.cell_m - 0.5).max(0.0);
+    let j_hi = floor((hi.y - spec.y_min_m) / spec.cell_m - 0.5).min(spec.ny as f64 - 1.0);
     (j_lo <= j_hi).then_some((j_lo as usize, j_hi as usize))
 }
 
