@@ -1084,21 +1084,8 @@ mod tests {
             cap in 16usize..5000,
             seed in any::<u64>(),
         ) {
-            let fs = 8000.0;
-            let tpl = ChirpTemplate::new(chirpmap_core::LinearChirp::new(3000.0, 200.0, 0.1).unwrap(), fs).unwrap();
-            let m = tpl.len();
-            let mut r = seed | 1;
-            let len = 500 + n_chirps * (m + gap) + 700;
-            let mut x: Vec<f32> = (0..len).map(|_| noise * (xorshift(&mut r) - 0.5)).collect();
-            for k in 0..n_chirps {
-                let at = 500 + k * (m + gap) + (xorshift(&mut r) * 50.0) as usize;
-                for (i, t) in tpl.real.iter().enumerate() {
-                    x[at + i] += t;
-                    if at + i + 120 < len {
-                        x[at + i + 120] += 0.3 * t;
-                    }
-                }
-            }
+            let (x, tpl) = chirps_in_noise(n_chirps, gap, noise, seed);
+            let (m, len) = (tpl.len(), x.len());
             let mut cache = FftCache::default();
             let max_delay = 0.02;
             let want = detect_chirps(&x, &tpl, &mut cache, max_delay);
@@ -1163,7 +1150,13 @@ mod tests {
     type Visited = (Vec<(usize, f64, (usize, usize, u64))>, Vec<Detection>);
 
     /// The scan with a visitor, in a pool of `threads`, blocks of `block` samples.
-    fn visited(x: &[f32], tpl: &ChirpTemplate, (before, after): (usize, usize), threads: usize, block: usize) -> Visited {
+    fn visited(
+        x: &[f32],
+        tpl: &ChirpTemplate,
+        (before, after): (usize, usize),
+        threads: usize,
+        block: usize,
+    ) -> Visited {
         struct Blocks<'a>(&'a [f32], usize, usize);
         impl BlockSource for Blocks<'_> {
             fn read(&mut self, out: &mut Vec<f32>, max: usize) -> Result<usize, AudioError> {
@@ -1177,8 +1170,9 @@ mod tests {
         pool.install(|| {
             let mut src = Blocks(x, 0, block);
             let visit = |w: &[f32], r: usize| fingerprint(w, r);
-            let (scan, v) = scan_with_cap(&mut src, x.len(), tpl, 0.02, MEDIAN_CAP, Some(Visitor { before, after, visit: &visit }))
-                .unwrap();
+            let (scan, v) =
+                scan_with_cap(&mut src, x.len(), tpl, 0.02, MEDIAN_CAP, Some(Visitor { before, after, visit: &visit }))
+                    .unwrap();
             let mut known = v.ncc.clone();
             let dets = select_reading(&scan, &mut known, || Ok(Blocks(x, 0, block))).unwrap();
             let mut got: Vec<_> = v.results.into_iter().map(|(o, r)| (o, v.ncc[&o], r)).collect();
@@ -1192,7 +1186,8 @@ mod tests {
     /// and one thread or four give the same values bit for bit.
     #[test]
     fn visits_are_the_windows_and_do_not_depend_on_threads() {
-        for (n_chirps, gap, noise, seed) in [(40usize, 900usize, 0.05f32, 7u64), (25, 2500, 0.3, 11), (3, 400, 0.0, 5)] {
+        for (n_chirps, gap, noise, seed) in [(40usize, 900usize, 0.05f32, 7u64), (25, 2500, 0.3, 11), (3, 400, 0.0, 5)]
+        {
             let (x, tpl) = chirps_in_noise(n_chirps, gap, noise, seed);
             let m = tpl.len();
             let spans = (40, m + 200);

@@ -297,9 +297,10 @@ impl RangeReport {
         };
         // One read ranges the likely chirps as the detection passes them.
         let delay_s = lim.max_delta_d_m / lim.speed_of_sound_mps;
-        let Some(FirstPass { scan: (scan, mut visits), clipped, checkpoints }) = first_pass(wav, &sos, channel, |src| {
-            scan_visiting(src, n, &tpl, delay_s, Visitor { before, after, visit: &estimate })
-        })?
+        let Some(FirstPass { scan: (scan, mut visits), clipped, checkpoints }) =
+            first_pass(wav, &sos, channel, |src| {
+                scan_visiting(src, n, &tpl, delay_s, Visitor { before, after, visit: &estimate })
+            })?
         else {
             return Ok(None);
         };
@@ -325,7 +326,8 @@ impl RangeReport {
                 window_start = r - s0;
             }
         })?;
-        let estimates: Vec<Vec<Option<Estimate>>> = estimates.into_iter().map(|e| e.unwrap_or_else(|| vec![None; methods.len()])).collect();
+        let estimates: Vec<Vec<Option<Estimate>>> =
+            estimates.into_iter().map(|e| e.unwrap_or_else(|| vec![None; methods.len()])).collect();
         let onset_mid = dets.get(dets.len() / 2).map_or(0, |d| d.onset_sample);
         let window_start = onset_mid - window_start;
         let chirps: Vec<RangedChirp> = dets.into_iter().zip(estimates).collect();
