@@ -267,3 +267,28 @@ fn sparse_poses_still_give_a_highlight_per_surface() {
     let wall = map.highlights.iter().map(|h| truth_distance(&truth, h.pos)).fold(f64::INFINITY, f64::min);
     assert!(wall <= 0.1, "a highlight on the wall face: {wall} m");
 }
+
+/// The evidence mapper votes lines and scans its grid on rayon's threads:
+/// the map (every cell's bits), the surfaces and the highlights must not
+/// depend on the thread count.
+#[test]
+fn room_map_is_identical_whatever_the_thread_count() {
+    let room = polygon(&[(0.0, 0.0), (8.0, 0.0), (8.0, 6.0), (0.0, 6.0)]);
+    let scene = ExactScene::from_obstacles(&[room, circle(5.5, 3.8, 0.3)]);
+    let poses = loop_poses(Point::new(4.0, 3.0), 2.6, 1.8, 160);
+    let opts = ExactOptions { second_order: true, ..ExactOptions::default() };
+    let echoes = exact_echoes(Point::new(2.0, 2.5), &poses, &scene, &opts).expect("exact echoes");
+    let spec = GridSpec::from_bounds([-3.0, -3.0, 11.0, 9.0], 0.1, u128::MAX).expect("grid");
+    let on = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("a thread pool");
+        pool.install(|| map_evidence(&echoes, spec, &EvidenceParams::default())).expect("evidence map")
+    };
+    let one = on(1);
+    assert!(one.surfaces.len() >= 4, "{} surfaces", one.surfaces.len());
+    let bits = |m: &chirpmap_core::EvidenceMap| m.grid.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+    for threads in [2, 3] {
+        let many = on(threads);
+        assert_eq!(bits(&one), bits(&many), "{threads} threads: grid");
+        assert_eq!(one, many, "{threads} threads");
+    }
+}

@@ -752,7 +752,6 @@ pub(crate) fn find_lines(ctx: &Ctx) -> LinesResult {
     let mut acc = vec![0f32; k_bins * n_rho];
     let half: Vec<f64> = (0..tan.len()).map(|k| tau(ctx, k) + rho_bin).collect();
     let inv_half: Vec<f64> = half.iter().map(|h| 1.0 / h).collect();
-    let mut rho_buf = vec![0.0; tan.len()];
     let window = half.iter().map(|h| (2.0 * h / rho_bin) as usize + 2).max().unwrap_or(1);
     let inv_bin = 1.0 / rho_bin;
     // Offset of each bin's centre (the same expression as in the loop it
@@ -760,10 +759,13 @@ pub(crate) fn find_lines(ctx: &Ctx) -> LinesResult {
     let centres: Vec<f64> = (0..n_rho + window).map(|i| i as f64 * rho_bin - r_max).collect();
     // Angle by angle (each echo's votes reach a cell in echo order either
     // way): one accumulator row stays in cache, and the offsets of all
-    // echoes at one angle are a straight, vectorisable loop.
-    for (t, &(nx, ny)) in trig.iter().enumerate() {
-        tan.offsets(Point::new(nx, ny), &mut rho_buf);
-        let row = &mut acc[t * n_rho..(t + 1) * n_rho];
+    // echoes at one angle are a straight, vectorisable loop. Rows are
+    // independent, so they are voted on rayon's threads (the same sums
+    // whatever the thread count).
+    use rayon::prelude::*;
+    let rows = acc.par_chunks_mut(n_rho).zip(trig.par_iter());
+    rows.for_each_init(|| vec![0.0; tan.len()], |rho_buf, (row, &(nx, ny))| {
+        tan.offsets(Point::new(nx, ny), rho_buf);
         for ((&rho, &half), &inv_half) in rho_buf.iter().zip(&half).zip(&inv_half) {
             // By a multiplication rather than a division: rounding can move
             // `lo` or `hi` by one only when a bin centre lies within an ulp
@@ -785,7 +787,7 @@ pub(crate) fn find_lines(ctx: &Ctx) -> LinesResult {
                 *v += (1.0 - d * inv_half).max(0.0) as f32;
             }
         }
-    }
+    });
     // Peaks: votes ≥ min_support and maximal among the 8 neighbours
     // (θ wraps); equal neighbours earlier in scan order win.
     let mut peaks: Vec<(f32, usize, usize)> = Vec::new();
