@@ -764,30 +764,33 @@ pub(crate) fn find_lines(ctx: &Ctx) -> LinesResult {
     // whatever the thread count).
     use rayon::prelude::*;
     let rows = acc.par_chunks_mut(n_rho).zip(trig.par_iter());
-    rows.for_each_init(|| vec![0.0; tan.len()], |rho_buf, (row, &(nx, ny))| {
-        tan.offsets(Point::new(nx, ny), rho_buf);
-        for ((&rho, &half), &inv_half) in rho_buf.iter().zip(&half).zip(&inv_half) {
-            // By a multiplication rather than a division: rounding can move
-            // `lo` or `hi` by one only when a bin centre lies within an ulp
-            // of the band's edge, where its weight is 0 or ~1e-16 (and the
-            // window keeps a spare cell past the band either way).
-            let lo = ceil_fast((rho - half + r_max) * inv_bin).max(0.0);
-            let hi = floor_fast((rho + half + r_max) * inv_bin).min(n_rho as f64 - 1.0);
-            if lo > hi {
-                continue;
+    rows.for_each_init(
+        || vec![0.0; tan.len()],
+        |rho_buf, (row, &(nx, ny))| {
+            tan.offsets(Point::new(nx, ny), rho_buf);
+            for ((&rho, &half), &inv_half) in rho_buf.iter().zip(&half).zip(&inv_half) {
+                // By a multiplication rather than a division: rounding can move
+                // `lo` or `hi` by one only when a bin centre lies within an ulp
+                // of the band's edge, where its weight is 0 or ~1e-16 (and the
+                // window keeps a spare cell past the band either way).
+                let lo = ceil_fast((rho - half + r_max) * inv_bin).max(0.0);
+                let hi = floor_fast((rho + half + r_max) * inv_bin).min(n_rho as f64 - 1.0);
+                if lo > hi {
+                    continue;
+                }
+                let first = lo as usize;
+                // A fixed-length window (cells past `hi` get a weight of exactly
+                // 0 or, by rounding, far below one f32 ulp of any peak) avoids a
+                // data-dependent loop length.
+                let end = (first + window).min(n_rho);
+                let _ = hi;
+                for (v, &x) in row[first..end].iter_mut().zip(&centres[first..]) {
+                    let d = (x - rho).abs();
+                    *v += (1.0 - d * inv_half).max(0.0) as f32;
+                }
             }
-            let first = lo as usize;
-            // A fixed-length window (cells past `hi` get a weight of exactly
-            // 0 or, by rounding, far below one f32 ulp of any peak) avoids a
-            // data-dependent loop length.
-            let end = (first + window).min(n_rho);
-            let _ = hi;
-            for (v, &x) in row[first..end].iter_mut().zip(&centres[first..]) {
-                let d = (x - rho).abs();
-                *v += (1.0 - d * inv_half).max(0.0) as f32;
-            }
-        }
-    });
+        },
+    );
     // Peaks: votes ≥ min_support and maximal among the 8 neighbours
     // (θ wraps); equal neighbours earlier in scan order win.
     let mut peaks: Vec<(f32, usize, usize)> = Vec::new();
