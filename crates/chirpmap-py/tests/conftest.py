@@ -7,6 +7,8 @@ import csv
 import os
 import struct
 import subprocess
+import threading
+import time
 from pathlib import Path
 from typing import List
 
@@ -72,3 +74,32 @@ def read_wav_f32(path: Path) -> np.ndarray:
         pos += 8 + size + (size & 1)
     assert channels and samples is not None, "no fmt or data chunk"
     return samples.reshape(-1, channels)
+
+
+def assert_main_thread_runs_during(call) -> None:
+    """Runs `call` on a second thread and checks that this thread keeps
+    running Python meanwhile: the GIL is released during the call.
+
+    Judged by the main thread's longest pause, not its speed: the library
+    keeps both cores busy (rayon), so the loop may run slower, but with the
+    GIL held it could not run at all for the call."""
+    inside, done = threading.Event(), threading.Event()
+
+    def work():
+        inside.set()
+        call()
+        done.set()
+
+    th = threading.Thread(target=work)
+    th.start()
+    inside.wait()
+    t_start = time.perf_counter()
+    last, longest, count = t_start, 0.0, 0
+    while not done.is_set():
+        now = time.perf_counter()
+        longest = max(longest, now - last)
+        last, count = now, count + 1
+    th.join()
+    took = time.perf_counter() - t_start
+    assert count > 100, f"the main thread ran {count} times in {took:.3f} s"
+    assert longest < 0.5 * took, f"the main thread stood still for {longest:.3f} s of {took:.3f} s"

@@ -4,13 +4,13 @@ releases the GIL."""
 
 from __future__ import annotations
 
-import threading
 import time
 
 import numpy as np
 import pytest
 
 import chirpmap
+from conftest import assert_main_thread_runs_during
 
 GOOD = [0.0, 0.0, 1.0, 1.0, 2.0]
 
@@ -153,26 +153,4 @@ def test_mapping_releases_the_gil():
             break
         n *= 2
     assert once > 0.1, f"the call took only {once:.4f} s with {n} echoes: too short to tell"
-    # Judged by the main thread's longest pause during the call, not by its
-    # speed: the mapper keeps both cores busy (rayon), so the loop may run
-    # slower, but with the GIL held it could not run at all for the call.
-    inside, done = threading.Event(), threading.Event()
-
-    def work():
-        inside.set()
-        chirpmap.map_echoes(echoes, bounds=(-40, -40, 40, 40))
-        done.set()
-
-    t = threading.Thread(target=work)
-    t.start()
-    inside.wait()
-    t_start = time.perf_counter()
-    last, longest, count = t_start, 0.0, 0
-    while not done.is_set():
-        now = time.perf_counter()
-        longest = max(longest, now - last)
-        last, count = now, count + 1
-    t.join()
-    took = time.perf_counter() - t_start
-    assert count > 100, f"the main thread ran {count} times in {took:.3f} s"
-    assert longest < 0.5 * took, f"the main thread stood still for {longest:.3f} s of {took:.3f} s"
+    assert_main_thread_runs_during(lambda: chirpmap.map_echoes(echoes, bounds=(-40, -40, 40, 40)))
