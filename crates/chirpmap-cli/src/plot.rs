@@ -219,11 +219,30 @@ impl ColourScale {
         }
     }
 
-    /// The scale for a map: [`ColourScale::Linear`] when any value is
-    /// negative (a signed quantity such as log-odds), else
-    /// [`ColourScale::SqrtOfMax`].
+    /// The scale of [`ColourScale::with_range`] alone.
+    #[cfg(test)] // the figures use `with_range`, which computes it in the same pass
     pub fn for_values(data: &[f64]) -> Self {
         if data.iter().any(|v| *v < 0.0) { Self::Linear } else { Self::SqrtOfMax }
+    }
+
+    /// The scale for a map, [`ColourScale::Linear`] when any value is
+    /// negative (a signed quantity such as log-odds), else
+    /// [`ColourScale::SqrtOfMax`], and its [`ColourScale::range`]: one pass
+    /// over `data` in parallel chunks (each pass over an 8 MB grid costs a
+    /// figure more than its colours do; issue 14).
+    pub fn with_range(data: &[f64]) -> (Self, (f64, f64)) {
+        use rayon::prelude::*;
+        let (negative, min, max) = data
+            .par_chunks(1 << 15)
+            .map(|c| {
+                let finite = c.iter().copied().filter(|v| v.is_finite());
+                let (min, max) = finite.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| (lo.min(v), hi.max(v)));
+                (c.iter().any(|v| *v < 0.0), min, max)
+            })
+            .reduce(|| (false, f64::INFINITY, f64::NEG_INFINITY), |a, b| (a.0 | b.0, a.1.min(b.1), a.2.max(b.2)));
+        let scale = if negative { Self::Linear } else { Self::SqrtOfMax };
+        // The finite minimum and maximum are the same whatever the chunks' order.
+        (scale, scale.range(&[min, max]))
     }
 
     /// Position in [0, 1] on the colour map of `v` within `range`.
@@ -269,7 +288,7 @@ pub struct MapStyle<'a> {
     /// lines (dashed when ambiguous), points as crosses.
     pub surfaces: &'a [Surface],
     /// Colour map of the grid values (the scale follows the values: see
-    /// [`ColourScale::for_values`]).
+    /// [`ColourScale::with_range`]).
     pub colour_map: ColourMap,
     /// Label of the colour bar (default "accumulated weight").
     pub value_label: Option<&'a str>,
@@ -408,9 +427,12 @@ fn grid_raster(
     grid_raster_in(grid, (w, h), x_range, y_range, cmap, scale, scale.range(&grid.data))
 }
 
+/// Slots of [`grid_raster_in`]'s colour cache (the hash keeps the top 10 bits).
+const COLOUR_CACHE: usize = 1 << 10;
+
 /// [`grid_raster`] with the value range already known. A pixel's colour is
-/// computed once per distinct value in a run of equal values (most pixels
-/// of a map are 0, and a spline evaluation per pixel was 12 % of `simulate`).
+/// computed once per distinct value a task meets (most pixels of a map are
+/// 0, and a spline evaluation per pixel was 12 % of `simulate`).
 fn grid_raster_in(
     grid: &Grid,
     (w, h): (u32, u32),
@@ -443,7 +465,11 @@ fn grid_raster_in(
         })
         .collect();
     // Pixel rows are independent: drawn on rayon's threads (issue 14).
-    buf.par_chunks_mut(w as usize * 3).enumerate().for_each_init(Vec::new, |row_max, (sy, out)| {
+    // Each task's colours by value: a direct-mapped cache (a map holds a few
+    // thousand distinct values and most pixels repeat one; the spline is
+    // evaluated once per value a task meets, not per pixel).
+    let init = || (Vec::new(), vec![None::<(u64, RGBColor)>; COLOUR_CACHE]);
+    buf.par_chunks_mut(w as usize * 3).enumerate().for_each_init(init, |(row_max, cache), (sy, out)| {
         let yb = y_range.1 - sy as f64 * my;
         let Some((j0, j1)) = cells(yb - my, yb, spec.y_min_m, spec.ny) else { return };
         // The pixel row's cell rows, reduced to one row of column maxima
@@ -459,16 +485,16 @@ fn grid_raster_in(
             }
             row_max
         };
-        // The colour of the previous pixel is reused while the value repeats.
-        let mut last: Option<(u64, RGBColor)> = None;
         for (sx, c) in cols.iter().enumerate() {
             let Some((i0, i1)) = *c else { continue };
             let v = maxima[i0..i1].iter().fold(f64::NEG_INFINITY, |m, x| m.max(*x));
-            let col = match last {
-                Some((bits, c)) if bits == v.to_bits() => c,
+            let bits = v.to_bits();
+            let slot = &mut cache[((bits ^ (bits >> 29)).wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 54) as usize];
+            let col = match *slot {
+                Some((b, c)) if b == bits => c,
                 _ => {
                     let c = cmap.eval(scale.position(v, range));
-                    last = Some((v.to_bits(), c));
+                    *slot = Some((bits, c));
                     c
                 }
             };
@@ -606,8 +632,7 @@ where
 
     let (px, py) = chart.plotting_area().get_pixel_range();
     let (pw, ph) = ((px.end - px.start).max(1) as u32, (py.end - py.start).max(1) as u32);
-    let scale = ColourScale::for_values(&plot.grid.data);
-    let range = scale.range(&plot.grid.data);
+    let (scale, range) = ColourScale::with_range(&plot.grid.data);
     let raster = grid_raster_in(plot.grid, (pw, ph), layout.x_range, layout.y_range, style.colour_map, scale, range);
     if let Some(img) = BitMapElement::<_>::with_owned_buffer((px.start, py.start), (pw, ph), raster) {
         root.draw(&img).map_err(plot_err)?;
@@ -940,6 +965,11 @@ mod tests {
         assert_eq!(at(2), ColourMap::Viridis.eval(1.0));
         // A constant or empty map still has a usable range.
         assert_eq!(ColourScale::Linear.range(&[3.0, 3.0]), (3.0, 4.0));
+        // One pass gives what the two give, on the grid above and edge cases.
+        for data in [&g.data[..], &[], &[0.0, 0.0], &[f64::NAN, 2.0, f64::INFINITY], &[-1.0, f64::NEG_INFINITY, 5.0]] {
+            let scale = ColourScale::for_values(data);
+            assert_eq!(ColourScale::with_range(data), (scale, scale.range(data)), "{data:?}");
+        }
         assert_eq!(ColourScale::SqrtOfMax.range(&[]), (0.0, 1.0));
         assert_eq!(ColourScale::Linear.range(&[f64::NAN]), (0.0, 1.0));
         assert_eq!(ColourScale::for_values(&g.data), ColourScale::Linear);

@@ -458,12 +458,14 @@ impl Mapper for AccumulationMapper {
         &self.grid
     }
     fn highlights(&self) -> Vec<Highlight> {
-        let mut scratch = Vec::new();
-        // `threshold_floor` is None only when every cell is 0: no highlight.
-        let floor = threshold_floor(&self.grid.data, self.params.keep_top, self.params.min_of_max, &mut scratch);
-        floor
-            .map_or_else(Vec::new, |f| local_maxima_above(&self.grid, self.params.peak_radius_cells(), f, &mut scratch))
+        let (g, r, mut scratch) = (&self.grid, self.params.peak_radius_cells(), Vec::new());
+        let (keep_top, min_of_max) = (self.params.keep_top, self.params.min_of_max);
+        // `local_maxima_above(g, r, threshold_floor(..))`, with the survivors
+        // gathered while the floor is found; None only when every cell is 0.
+        let found = quantile_floor(&g.data, keep_top, min_of_max, &mut scratch, Some((g.spec.nx, survivor_limit(g))));
+        found.map_or_else(Vec::new, |(floor, cells)| maxima_of(g, r, floor, cells, &mut scratch))
     }
+
 }
 
 /// Adds `w` once to every cell `e` enters (Algorithm 1's inner loop, one
@@ -505,31 +507,112 @@ pub fn threshold(data: &mut [f64], keep_top: f64, min_of_max: f64) {
 
 /// The value below which [`threshold`] zeroes a cell, without changing the
 /// data (`None` when no cell is non-zero: nothing changes). `scratch`
-/// receives the non-zero values (kept for its capacity).
+/// receives the candidates of the quantile's bucket (kept for its capacity).
 pub fn threshold_floor(data: &[f64], keep_top: f64, min_of_max: f64, scratch: &mut Vec<f64>) -> Option<f64> {
+    quantile_floor(data, keep_top, min_of_max, scratch, None).map(|(floor, _)| floor)
+}
+
+/// [`threshold_floor`], and with `cells = Some((nx, limit))` the
+/// [`survivors`] of that floor (gathered in the same pass) when at most
+/// `limit` cells can be among them.
+///
+/// The quantile is found by a radix select (issue 14): one parallel pass
+/// counts the non-zero cells by the top [`QUANTILE_BUCKET_BITS`] bits of
+/// their [`f64::total_cmp`] key (sign, exponent and the first mantissa
+/// bits), which names the bucket holding the wanted rank; a second pass
+/// gathers only that bucket's values (and the cells of it and the buckets
+/// above, which hold every survivor) and selects within them. The counts are
+/// exact and order-free, so the value is the one a full sort would pick,
+/// whatever the thread count, without copying every non-zero cell.
+fn quantile_floor(
+    data: &[f64],
+    keep_top: f64,
+    min_of_max: f64,
+    scratch: &mut Vec<f64>,
+    cells: Option<(usize, usize)>,
+) -> Option<(f64, Option<Survivors>)> {
     use rayon::prelude::*;
-    // The non-zero cells and the maximum, chunk by chunk on rayon's threads
-    // (issue 14); the quantile is a value, whatever order they come in.
-    let chunks: Vec<(Vec<f64>, f64)> = data
-        .par_chunks(SCAN_CHUNK)
+    let buckets = 1usize << QUANTILE_BUCKET_BITS;
+    let bucket_of = |v: f64| (total_order_key(v) >> (64 - QUANTILE_BUCKET_BITS)) as usize;
+    // Pass 1, a few contiguous parts per thread: each counts into its own u32
+    // counters (a part has fewer than 2³² cells), summed after; f64::max
+    // ignores NaN, so the maximum does not depend on the order either.
+    let part_len = data.len().div_ceil(2 * rayon::current_num_threads().max(1)).clamp(SCAN_CHUNK, u32::MAX as usize);
+    let parts: Vec<(Vec<u32>, f64)> = data
+        .par_chunks(part_len)
         .map(|c| {
-            let max = c.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-            (c.iter().copied().filter(|v| *v != 0.0).collect(), max)
+            let mut counts = vec![0u32; buckets];
+            for &v in c.iter().filter(|v| **v != 0.0) {
+                counts[bucket_of(v)] += 1;
+            }
+            (counts, c.iter().copied().fold(f64::NEG_INFINITY, f64::max))
+        })
+        .collect();
+    let mut counts = vec![0u64; buckets];
+    let mut max = f64::NEG_INFINITY;
+    for (c, m) in &parts {
+        counts.iter_mut().zip(c).for_each(|(x, y)| *x += u64::from(*y));
+        max = max.max(*m);
+    }
+    let n = usize::try_from(counts.iter().sum::<u64>()).ok()?;
+    if n == 0 {
+        return None;
+    }
+    let rank = (((1.0 - keep_top) * n as f64).floor() as usize).min(n - 1);
+    // The bucket holding `rank`, and how many non-zero cells lie below it.
+    let mut below = 0usize;
+    let mut bucket = 0;
+    for (b, &c) in counts.iter().enumerate() {
+        let c = c as usize;
+        if below + c > rank {
+            bucket = b;
+            break;
+        }
+        below += c;
+    }
+    // Every survivor (at or above the quantile, positive) is in `bucket` or
+    // above it: gathered when those are few enough.
+    let gather = cells.filter(|&(_, limit)| n - below <= limit).map(|(nx, _)| nx);
+    // Pass 2: that bucket's values (zero is never in it: its count has none).
+    let parts: Vec<(Vec<f64>, Survivors)> = data
+        .par_chunks(SCAN_CHUNK)
+        .enumerate()
+        .map(|(c, chunk)| {
+            let (mut values, mut kept) = (Vec::new(), Vec::new());
+            for (k, &v) in chunk.iter().enumerate().filter(|(_, v)| **v != 0.0) {
+                let b = bucket_of(v);
+                if b == bucket {
+                    values.push(v);
+                }
+                if let Some(nx) = gather.filter(|_| b >= bucket && v > 0.0) {
+                    let at = c * SCAN_CHUNK + k;
+                    kept.push((at % nx, at / nx, v));
+                }
+            }
+            (values, kept)
         })
         .collect();
     scratch.clear();
-    let mut max = f64::NEG_INFINITY;
-    for (nonzero, m) in &chunks {
-        scratch.extend_from_slice(nonzero);
-        max = max.max(*m);
-    }
-    if scratch.is_empty() {
-        return None;
-    }
-    let n = scratch.len();
-    let rank = (((1.0 - keep_top) * n as f64).floor() as usize).min(n - 1);
-    let (_, q, _) = scratch.select_nth_unstable_by(rank, f64::total_cmp);
-    Some(q.max(min_of_max * max))
+    parts.iter().for_each(|(values, _)| scratch.extend_from_slice(values));
+    let (_, q, _) = scratch.select_nth_unstable_by(rank - below, f64::total_cmp);
+    let floor = q.max(min_of_max * max);
+    let survivors = gather.map(|_| {
+        let mut kept: Survivors = parts.into_iter().flat_map(|(_, kept)| kept).collect();
+        kept.retain(|&(_, _, v)| v >= floor);
+        kept
+    });
+    Some((floor, survivors))
+}
+
+/// Bits of the [`f64::total_cmp`] key that name a bucket of
+/// [`threshold_floor`]'s radix select (2¹⁶ counters per thread).
+const QUANTILE_BUCKET_BITS: u32 = 16;
+
+/// A `u64` whose unsigned order is [`f64::total_cmp`]'s order (negative
+/// values' bits flipped, positive values' sign bit set).
+fn total_order_key(v: f64) -> u64 {
+    let bits = v.to_bits();
+    if bits >> 63 == 1 { !bits } else { bits | (1 << 63) }
 }
 
 /// Cells per parallel task of the whole-grid scans (256 KiB of f64).
@@ -593,17 +676,30 @@ pub fn local_maxima(g: &Grid, r: usize) -> Vec<Highlight> {
 /// the van Herk / Gil–Werman window maximum runs over the whole grid
 /// ([`dense_candidates`]).
 pub fn local_maxima_above(g: &Grid, r: usize, floor: f64, scratch: &mut Vec<f64>) -> Vec<Highlight> {
+    maxima_of(g, r, floor, None, scratch)
+}
+
+/// [`local_maxima_above`] given the [`survivors`] when they are known.
+fn maxima_of(g: &Grid, r: usize, floor: f64, known: Option<Survivors>, scratch: &mut Vec<f64>) -> Vec<Highlight> {
     let GridSpec { nx, ny, .. } = g.spec;
     if nx == 0 || ny == 0 {
         return Vec::new();
     }
     let r = r.min(nx.max(ny));
-    let candidates = match survivors(g, floor, g.data.len() / 8) {
-        Some(cells) => sparse_candidates(g, r, cells),
-        None => dense_candidates(g, r, floor, scratch),
+    let candidates = match known.or_else(|| survivors(g, floor, survivor_limit(g))) {
+        Some(cells) if cells.len() <= survivor_limit(g) => sparse_candidates(g, r, cells),
+        _ => dense_candidates(g, r, floor, scratch),
     };
     thin_plateaus(g, r, candidates)
 }
+
+/// Survivors beyond which [`dense_candidates`] is faster than [`sparse_candidates`].
+fn survivor_limit(g: &Grid) -> usize {
+    g.data.len() / 8
+}
+
+/// Cells `(i, j, value)` at or above a floor, in raster order.
+type Survivors = Vec<(usize, usize, f64)>;
 
 /// Cells `(i, j, value)` by bucket `(i, j) / (r + 1)`.
 type CellBuckets = std::collections::HashMap<(usize, usize), Vec<(usize, usize, f64)>>;
@@ -788,6 +884,46 @@ mod tests {
         assert_eq!(d, vec![0.0, 0.0, 0.0, 1000.0]);
     }
 
+    /// The radix select's floor against a full sort of the non-zero cells
+    /// (the definition), on values spread over many binades, ties, NaN and
+    /// negative values.
+    #[test]
+    fn threshold_floor_is_the_sorted_non_zero_cells_rank() {
+        let naive = |d: &[f64], keep_top: f64, min_of_max: f64| {
+            let mut nz: Vec<f64> = d.iter().copied().filter(|v| *v != 0.0).collect();
+            if nz.is_empty() {
+                return None;
+            }
+            nz.sort_by(f64::total_cmp);
+            let rank = (((1.0 - keep_top) * nz.len() as f64).floor() as usize).min(nz.len() - 1);
+            let max = d.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            Some(nz[rank].max(min_of_max * max))
+        };
+        let mut x = 12345u64;
+        let mut next = || {
+            x = x.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            x >> 11
+        };
+        for case in 0..40 {
+            let n = [0, 1, 2, 7, 1000, 100_000][case % 6];
+            let d: Vec<f64> = (0..n)
+                .map(|_| match next() % 10 {
+                    0..=3 => 0.0,
+                    4 => -0.0,
+                    5 => (next() % 4) as f64, // ties
+                    6 if case % 5 == 0 => f64::NAN,
+                    7 if case % 3 == 0 => -((next() % 1000) as f64) * 1e-3,
+                    _ => f64::from_bits(0x3e00_0000_0000_0000 + (next() % (1 << 58))), // 2⁻³¹ … 2³³
+                })
+                .collect();
+            for keep_top in [0.0, 0.1, 0.5, 0.999, 1.0] {
+                let got = threshold_floor(&d, keep_top, 0.01, &mut Vec::new());
+                let want = naive(&d, keep_top, 0.01);
+                assert_eq!(got.map(f64::to_bits), want.map(f64::to_bits), "case {case}, n {n}, keep_top {keep_top}");
+            }
+        }
+    }
+
     #[test]
     fn local_maxima_respect_window() {
         let mut g = Grid::zeros(spec(200));
@@ -864,7 +1000,15 @@ mod tests {
             let sparse = thin_plateaus(&g, r, sparse_candidates(&g, r, survivors(&g, floor, usize::MAX).unwrap()));
             let dense = thin_plateaus(&g, r, dense_candidates(&g, r, floor, &mut Vec::new()));
             proptest::prop_assert_eq!(cells(sparse), want.clone());
-            proptest::prop_assert_eq!(cells(dense), want);
+            proptest::prop_assert_eq!(cells(dense), want.clone());
+            // The survivors gathered with the floor (`highlights`' path), and
+            // with too low a limit to gather them.
+            for limit in [usize::MAX, 3] {
+                let (fused_floor, known) = quantile_floor(&g.data, keep_top, 0.01, &mut Vec::new(), Some((nx, limit))).unzip();
+                proptest::prop_assert_eq!(fused_floor.unwrap_or(f64::INFINITY).to_bits(), floor.to_bits());
+                let fused = maxima_of(&g, r, floor, known.flatten(), &mut Vec::new());
+                proptest::prop_assert_eq!(cells(fused), want.clone());
+            }
         }
     }
 
