@@ -465,7 +465,6 @@ impl Mapper for AccumulationMapper {
         let found = quantile_floor(&g.data, keep_top, min_of_max, &mut scratch, Some((g.spec.nx, survivor_limit(g))));
         found.map_or_else(Vec::new, |(floor, cells)| maxima_of(g, r, floor, cells, &mut scratch))
     }
-
 }
 
 /// Adds `w` once to every cell `e` enters (Algorithm 1's inner loop, one

@@ -17,7 +17,7 @@
 use chirpmap::core::exact::{ExactOptions, ExactScene, Pose, exact_echoes};
 use chirpmap::core::{Circle, Polygon, Shape};
 use chirpmap::{
-    ChirpSpec, Echo, FrameParams, MapOptions, MapperKind, Method, Obstacle, Point, PoseTrack, Scene, evaluate,
+    ChirpSpec, Echo, MapOptions, MapperKind, MovingOptions, Obstacle, Point, PoseTrack, Scene, WavMethod, evaluate,
     map_echoes,
 };
 use std::time::Instant;
@@ -232,7 +232,8 @@ pub fn particle_cases(runs: u64) -> Result<Vec<Case>, String> {
 }
 
 /// The field environments from synthesized recordings (20 dB SNR), ranged
-/// per 10 ms frame with the dechirp method at the listener's poses.
+/// per 10 ms frame at the listener's poses with the Doppler-corrected method
+/// (`map --wav`'s default: the listener walks, issue 11).
 pub fn synth_cases() -> Result<Vec<Case>, String> {
     let mut out = Vec::new();
     for env in ['A', 'B'] {
@@ -244,14 +245,16 @@ pub fn synth_cases() -> Result<Vec<Case>, String> {
         let poses = PoseTrack::new(rec.poses.first().cloned().unwrap_or_default()).map_err(err)?;
         let x = rec.channels.first().cloned().unwrap_or_default();
         let prep = chirpmap::prepare(x, fs, &ChirpSpec::from_scene(&scene)).map_err(err)?;
-        let params = FrameParams {
-            method: Method::Dechirp,
+        let opts = MovingOptions {
+            method: WavMethod::Doppler,
+            pattern: None,
             period_s: 0.01,
             frame_s: None,
             speaker: Point::new(scene.source.position[0], scene.source.position[1]),
             listener_id: 0,
         };
-        let got = chirpmap::echoes_from_recording(&prep, &poses, &params).map_err(err)?;
+        let chirp = ChirpSpec::from_scene(&scene);
+        let got = chirpmap::RecordingEchoes::from_moving(&prep, &chirp, &poses, &opts).map_err(err)?;
         let truth = chirpmap::sim::resolve(&scene).map_err(|e| format!("{name}: {e}"))?.obstacles;
         out.push(Case {
             name,

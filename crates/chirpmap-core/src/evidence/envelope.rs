@@ -181,11 +181,15 @@ pub(crate) fn find_points(ctx: &Ctx, skip: &[bool], max_points: usize) -> Vec<Po
         if meas_seen.len() < p.min_support as usize {
             continue;
         }
+        let at = env[seed].p;
+        // Every other free echo the reflector explains: without this, the
+        // second crossings of its ellipses (on the far side of the foci) pile
+        // up on a ghost curve and take the echoes its cluster radius missed.
+        explain_more(ctx, skip, &echo_used, at, &mut touches, &mut meas_seen);
         for &(k, _) in &touches {
             echo_used[k] = true;
         }
         let ks: Vec<usize> = touches.iter().map(|&(k, _)| k).collect();
-        let at = env[seed].p;
         out.push(PointOut {
             surface: Surface {
                 kind: SurfaceKind::Point,
@@ -198,4 +202,116 @@ pub(crate) fn find_points(ctx: &Ctx, skip: &[bool], max_points: usize) -> Vec<Po
         });
     }
     out
+}
+
+/// A compact reflector as a small circle: centre `c`, radius `rho_m`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct SmallCircle {
+    pub c: Point,
+    pub rho_m: f64,
+}
+
+impl SmallCircle {
+    /// Predicted Δd of an echo with foci `s` and `l`: the specular path off
+    /// the circle, `|s − c| + |c − l| − 2ρ·cos(β/2)` with β the angle s–c–l
+    /// (exact to first order in ρ over the distances), minus `|s − l|`.
+    /// Also returns the path's gradient in (cx, cy, ρ), the ρ term's
+    /// dependence on `c` left out (second order).
+    fn predict(&self, s: Point, l: Point) -> Option<(f64, [f64; 3])> {
+        let (ds, dl) = (s - self.c, l - self.c);
+        let (ns, nl) = (ds.norm(), dl.norm());
+        if !(ns > 1e-9 && nl > 1e-9) {
+            return None;
+        }
+        let cos_beta = (ds.dot(dl) / (ns * nl)).clamp(-1.0, 1.0);
+        let half = (0.5 * (1.0 + cos_beta)).sqrt();
+        let path = ns + nl - 2.0 * self.rho_m * half;
+        let grad = [-(ds.x / ns + dl.x / nl), -(ds.y / ns + dl.y / nl), -2.0 * half];
+        Some((path - s.dist(l), grad))
+    }
+
+    /// Gauss–Newton fit of centre and radius to the echoes `ks`, from a
+    /// point reflector at `start`; the radius is kept within `[0, max_rho_m]`.
+    /// `None` when the echoes do not fix the three unknowns.
+    fn fit(ctx: &Ctx, ks: &[usize], start: Point, max_rho_m: f64) -> Option<Self> {
+        let mut model = Self { c: start, rho_m: 0.0 };
+        for _ in 0..8 {
+            let (mut a, mut g) = ([[0.0f64; 3]; 3], [0.0f64; 3]);
+            for &k in ks {
+                let e = &ctx.preps[k].ellipse;
+                let (pred, j) = model.predict(e.focus_a, e.focus_b)?;
+                let r = e.delta_d_m - pred;
+                for (u, ju) in j.iter().enumerate() {
+                    g[u] += ju * r;
+                    for (v, jv) in j.iter().enumerate() {
+                        a[u][v] += ju * jv;
+                    }
+                }
+            }
+            let step = solve3(a, g)?;
+            model.c = Point::new(model.c.x + step[0], model.c.y + step[1]);
+            model.rho_m = (model.rho_m + step[2]).clamp(0.0, max_rho_m);
+            if step[0].hypot(step[1]) < 1e-6 && step[2].abs() < 1e-6 {
+                break;
+            }
+        }
+        model.c.x.is_finite().then_some(model).filter(|m| m.c.y.is_finite())
+    }
+}
+
+/// Adds to `touches` (at the reflector's point `at`) every echo neither
+/// skipped, used nor already touched whose Δd a [`SmallCircle`] fitted to
+/// the touched echoes predicts within kσ, in two rounds (fit, extend,
+/// refit, extend), and records their measurements.
+fn explain_more(
+    ctx: &Ctx,
+    skip: &[bool],
+    echo_used: &[bool],
+    at: Point,
+    touches: &mut Vec<(usize, Point)>,
+    meas_seen: &mut std::collections::BTreeSet<usize>,
+) {
+    let p = ctx.params;
+    for _ in 0..2 {
+        let ks: Vec<usize> = touches.iter().map(|&(k, _)| k).collect();
+        let Some(model) = SmallCircle::fit(ctx, &ks, at, p.point_radius_m) else { return };
+        let mut touched = vec![false; ctx.preps.len()];
+        ks.iter().for_each(|&k| touched[k] = true);
+        for (k, prep) in ctx.preps.iter().enumerate() {
+            if skip[k] || echo_used[k] || touched[k] {
+                continue;
+            }
+            let e = &prep.ellipse;
+            let explained = model
+                .predict(e.focus_a, e.focus_b)
+                .is_some_and(|(pred, _)| (e.delta_d_m - pred).abs() <= p.band_sigmas * prep.sigma_m);
+            if explained {
+                touches.push((k, at));
+                meas_seen.insert(prep.meas);
+            }
+        }
+    }
+}
+
+/// Solves the 3×3 system `a·x = b` by Cramer's rule (`None` when `a` is
+/// near-singular); three unknowns do not warrant a linear-algebra crate.
+fn solve3(a: [[f64; 3]; 3], b: [f64; 3]) -> Option<[f64; 3]> {
+    let det = |m: [[f64; 3]; 3]| {
+        m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+            + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
+    };
+    let d = det(a);
+    let scale = a.iter().flatten().fold(0.0f64, |m, v| m.max(v.abs()));
+    if !(d.abs() > 1e-12 * scale.powi(3)) {
+        return None;
+    }
+    let mut x = [0.0; 3];
+    for (col, xc) in x.iter_mut().enumerate() {
+        let mut m = a;
+        for row in 0..3 {
+            m[row][col] = b[row];
+        }
+        *xc = det(m) / d;
+    }
+    Some(x)
 }
