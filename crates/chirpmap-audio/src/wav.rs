@@ -641,11 +641,8 @@ fn decode<const W: usize>(
         v
     };
     if n_ch == 1 {
-        let start = out.len();
-        out.resize(start + raw.len() / W, 0.0);
-        for (o, s) in out[start..].iter_mut().zip(raw.chunks_exact(W)) {
-            *o = sample(s);
-        }
+        // Written once, not zero-filled first (an exact-size extend).
+        out.extend(raw.chunks_exact(W).map(&mut sample));
     } else {
         for frame in raw.chunks_exact(W * n_ch) {
             for (c, s) in frame.chunks_exact(W).enumerate() {
