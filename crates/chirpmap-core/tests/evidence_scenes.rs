@@ -324,4 +324,19 @@ fn pole_beside_a_straight_walk_is_one_point() {
     // Most of its echoes (echoes a rejected line candidate owns take no part
     // in the envelope: the module docs).
     assert!(s.support * 10 >= echoes.len() * 7, "the pole explains {} of {} echoes", s.support, echoes.len());
+    // Its mirror across the walk, (1, 10), is 5.9 m further from the source:
+    // the echoes tell the two apart, so the pole is not flagged ambiguous.
+    assert!(!s.ambiguous, "a pole off the line of source and walk is not mirror-ambiguous");
+
+    // A walk along y = 2 through the source (its poses miss the source by
+    // 1 cm): the pole's mirror across the walk, (1, 8), is as far from every
+    // focus as the pole, so the echoes cannot tell them apart; flagged.
+    let source = Point::new(0.0, 2.0);
+    let poses: Vec<Pose> =
+        (0..1000).map(|k| Pose { t_s: 0.02 * k as f64, listener: Point::new(-10.01 + 0.02 * k as f64, 2.0) }).collect();
+    let echoes = exact_echoes(source, &poses, &scene, &ExactOptions::default()).expect("exact");
+    let map = map_evidence(&echoes, spec, &EvidenceParams::default()).expect("map");
+    print_surfaces("pole beside a walk through the source", &map.surfaces);
+    let points: Vec<_> = map.surfaces.iter().filter(|s| s.kind == SurfaceKind::Point).collect();
+    assert!(!points.is_empty() && points.iter().all(|s| s.ambiguous), "on the walk's line: ambiguous");
 }

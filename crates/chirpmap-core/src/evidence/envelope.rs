@@ -196,7 +196,7 @@ pub(crate) fn find_points(ctx: &Ctx, skip: &[bool], max_points: usize) -> Vec<Po
                 p0: at,
                 p1: at,
                 support: meas_seen.len(),
-                ambiguous: ctx.collinear(&ks),
+                ambiguous: point_ambiguous(ctx, &ks, at),
             },
             touches,
         });
@@ -314,4 +314,37 @@ fn solve3(a: [[f64; 3]; 3], b: [f64; 3]) -> Option<[f64; 3]> {
         *xc = det(m) / d;
     }
     Some(x)
+}
+
+/// Whether a point reflector at `at` is mirror-ambiguous for its echoes
+/// `ks`: their moving foci lie on one line ([`Ctx::collinear`]) and the
+/// point's mirror image across that line predicts every echo's Δd as well
+/// (within kσ). Unlike a wall's twin, a point's mirror keeps the moving
+/// focus's distances but not the fixed one's, so a walk past a pole is
+/// ambiguous only when the fixed focus is on the walk's line (or as far from
+/// both images).
+fn point_ambiguous(ctx: &Ctx, ks: &[usize], at: Point) -> bool {
+    if !ctx.collinear(ks) {
+        return false;
+    }
+    let foci = |pick: fn(&Ellipse) -> Point| ks.iter().map(|&k| pick(&ctx.preps[k].ellipse)).collect::<Vec<_>>();
+    let (srcs, lsts) = (foci(|e| e.focus_a), foci(|e| e.focus_b));
+    let spread = |ps: &[Point]| ps.iter().map(|p| p.dist(ps[0])).fold(0.0, f64::max);
+    let tol = ctx.params.collinear_tol_m;
+    let moving = if spread(&srcs) <= tol {
+        lsts
+    } else if spread(&lsts) <= tol {
+        srcs
+    } else {
+        srcs.into_iter().chain(lsts).collect()
+    };
+    // With every focus in one place there is no line, and no mirror to tell apart.
+    let Some((c, dir)) = super::principal_axis(&moving) else { return true };
+    let n = Point::new(-dir.y, dir.x);
+    let mirror = at - n * (2.0 * (at - c).dot(n));
+    let path = |p: Point, e: &Ellipse| e.focus_a.dist(p) + p.dist(e.focus_b);
+    ks.iter().all(|&k| {
+        let prep = &ctx.preps[k];
+        (path(at, &prep.ellipse) - path(mirror, &prep.ellipse)).abs() <= ctx.params.band_sigmas * prep.sigma_m
+    })
 }
