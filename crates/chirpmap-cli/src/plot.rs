@@ -427,8 +427,14 @@ fn grid_raster(
     grid_raster_in(grid, (w, h), x_range, y_range, cmap, scale, scale.range(&grid.data))
 }
 
-/// Slots of [`grid_raster_in`]'s colour cache (the hash keeps the top 10 bits).
-const COLOUR_CACHE: usize = 1 << 10;
+/// Slots of the rasters' colour caches ([`grid_raster_in`], the spectrogram's).
+pub(crate) const COLOUR_CACHE: usize = 1 << 10;
+
+/// The colour-cache slot of a value's bits (a multiplicative hash keeping
+/// as many top bits as the cache has slots).
+pub(crate) fn colour_slot(bits: u64) -> usize {
+    ((bits ^ (bits >> 29)).wrapping_mul(0x9E37_79B9_7F4A_7C15) >> (64 - COLOUR_CACHE.trailing_zeros())) as usize
+}
 
 /// [`grid_raster`] with the value range already known. A pixel's colour is
 /// computed once per distinct value a task meets (most pixels of a map are
@@ -489,7 +495,7 @@ fn grid_raster_in(
             let Some((i0, i1)) = *c else { continue };
             let v = maxima[i0..i1].iter().fold(f64::NEG_INFINITY, |m, x| m.max(*x));
             let bits = v.to_bits();
-            let slot = &mut cache[((bits ^ (bits >> 29)).wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 54) as usize];
+            let slot = &mut cache[colour_slot(bits)];
             let col = match *slot {
                 Some((b, c)) if b == bits => c,
                 _ => {

@@ -3,7 +3,8 @@
 //! peaks. SVG when the path ends in `.svg`, PNG otherwise.
 
 use crate::plot::{
-    ColourMap, colour_bar, ensure_font, legend_and_present, line_chart, plot_err, tick_label, with_backend,
+    COLOUR_CACHE, ColourMap, colour_bar, colour_slot, ensure_font, legend_and_present, line_chart, plot_err,
+    tick_label, with_backend,
 };
 use anyhow::Result;
 use plotters::coord::Shift;
@@ -66,7 +67,7 @@ fn spectrogram_raster(sg: &Spectrogram, (w, h): (u32, u32)) -> Vec<u8> {
         for (px, fr) in row.chunks_exact_mut(3).zip(&frame_of) {
             let Some(&v) = fr.and_then(|fr| fr.get(bin)) else { continue };
             let bits = v.to_bits();
-            let slot = &mut cache[((bits ^ (bits >> 29)).wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 54) as usize];
+            let slot = &mut cache[colour_slot(bits)];
             let c = match *slot {
                 Some((b, c)) if b == bits => c,
                 _ => {
@@ -80,9 +81,6 @@ fn spectrogram_raster(sg: &Spectrogram, (w, h): (u32, u32)) -> Vec<u8> {
     });
     buf
 }
-
-/// Slots of [`spectrogram_raster`]'s colour cache (the hash keeps the top 10 bits).
-const COLOUR_CACHE: usize = 1 << 10;
 
 fn draw_spectrogram<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, sg: &Spectrogram) -> Result<()>
 where

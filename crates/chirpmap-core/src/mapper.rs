@@ -595,7 +595,10 @@ fn quantile_floor(
     parts.iter().for_each(|(values, _)| scratch.extend_from_slice(values));
     let (_, q, _) = scratch.select_nth_unstable_by(rank - below, f64::total_cmp);
     let floor = q.max(min_of_max * max);
-    let survivors = gather.map(|_| {
+    // The gathered cells hold every survivor only when the floor is at or
+    // above the quantile (not when the quantile is NaN: then the floor is
+    // `min_of_max · max`, and the survivors are found by a scan).
+    let survivors = gather.filter(|_| floor >= *q).map(|_| {
         let mut kept: Survivors = parts.into_iter().flat_map(|(_, kept)| kept).collect();
         kept.retain(|&(_, _, v)| v >= floor);
         kept
@@ -604,7 +607,7 @@ fn quantile_floor(
 }
 
 /// Bits of the [`f64::total_cmp`] key that name a bucket of
-/// [`threshold_floor`]'s radix select (2¹⁶ counters per thread).
+/// [`threshold_floor`]'s radix select (2¹⁶ counters per part, a few parts per thread).
 const QUANTILE_BUCKET_BITS: u32 = 16;
 
 /// A `u64` whose unsigned order is [`f64::total_cmp`]'s order (negative
@@ -921,6 +924,45 @@ mod tests {
                 assert_eq!(got.map(f64::to_bits), want.map(f64::to_bits), "case {case}, n {n}, keep_top {keep_top}");
             }
         }
+    }
+
+    /// `highlights`' fused path (survivors gathered with the floor) against
+    /// `local_maxima_above(threshold_floor(..))`, on grids of several scan
+    /// chunks, with ties, and with the quantile's rank on a NaN cell.
+    #[test]
+    fn fused_highlights_match_the_two_step_definition() {
+        let mut x = 99u64;
+        let mut next = || {
+            x = x.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            x >> 33
+        };
+        let cells = |h: Vec<Highlight>| h.iter().map(|h| (h.pos.x.to_bits(), h.pos.y.to_bits())).collect::<Vec<_>>();
+        for (n, keep_top) in [(300usize, 0.1), (257, 0.3), (181, 0.05)] {
+            let mut g = Grid::zeros(spec(n));
+            for v in &mut g.data {
+                *v = match next() % 10 {
+                    0..=6 => 0.0,
+                    7 => (next() % 5) as f64,
+                    _ => (next() % 100_000) as f64 * 1e-3,
+                };
+            }
+            let floor = threshold_floor(&g.data, keep_top, 0.01, &mut Vec::new()).unwrap_or(f64::INFINITY);
+            let want = cells(local_maxima_above(&g, 7, floor, &mut Vec::new()));
+            let (_, known) = quantile_floor(&g.data, keep_top, 0.01, &mut Vec::new(), Some((n, survivor_limit(&g))))
+                .expect("non-zero cells");
+            assert!(known.is_some(), "few enough survivors to gather");
+            assert_eq!(cells(maxima_of(&g, 7, floor, known, &mut Vec::new())), want, "n {n}");
+        }
+        // 1, 2, 3, 4 and a NaN: rank ⌊0.9·5⌋ = 4 is the NaN (largest in total order).
+        let mut g = Grid::zeros(spec(10));
+        for (k, v) in [1.0, 2.0, 3.0, 4.0, f64::NAN].into_iter().enumerate() {
+            g.data[k * 21] = v;
+        }
+        let floor = threshold_floor(&g.data, 0.1, 0.01, &mut Vec::new()).expect("non-zero cells");
+        let want = cells(local_maxima_above(&g, 1, floor, &mut Vec::new()));
+        assert_eq!(want.len(), 4);
+        let (_, known) = quantile_floor(&g.data, 0.1, 0.01, &mut Vec::new(), Some((10, usize::MAX))).expect("cells");
+        assert_eq!(cells(maxima_of(&g, 1, floor, known, &mut Vec::new())), want);
     }
 
     #[test]

@@ -207,7 +207,9 @@ pub(crate) fn find_points(ctx: &Ctx, skip: &[bool], max_points: usize) -> Vec<Po
 /// A compact reflector as a small circle: centre `c`, radius `rho_m`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct SmallCircle {
+    /// Centre (m, world frame).
     pub c: Point,
+    /// Radius (m), within `[0, point_radius_m]`.
     pub rho_m: f64,
 }
 
@@ -230,11 +232,27 @@ impl SmallCircle {
         Some((path - s.dist(l), grad))
     }
 
+    /// The reflection point of an echo with foci `s` and `l`: on the circle,
+    /// along the bisector of the directions to them.
+    fn specular_point(&self, s: Point, l: Point) -> Point {
+        let (ds, dl) = (s - self.c, l - self.c);
+        let (ns, nl) = (ds.norm(), dl.norm());
+        let bisector = if ns > 0.0 && nl > 0.0 { ds * (1.0 / ns) + dl * (1.0 / nl) } else { Point::new(0.0, 0.0) };
+        let len = bisector.norm();
+        if len > 1e-12 { self.c + bisector * (self.rho_m / len) } else { self.c }
+    }
+
     /// Gauss–Newton fit of centre and radius to the echoes `ks`, from a
     /// point reflector at `start`; the radius is kept within `[0, max_rho_m]`.
-    /// `None` when the echoes do not fix the three unknowns.
+    /// `None` when the echoes do not fix the three unknowns: a singular
+    /// system, no convergence in the iterations, a centre more than
+    /// 2·`max_rho_m` from `start` (the cluster lies next to the reflector's
+    /// surface; along a straight pass the centre's distance and the radius
+    /// trade against each other and an undamped step can run off), or an RMS
+    /// residual above `band_sigmas` σ.
     fn fit(ctx: &Ctx, ks: &[usize], start: Point, max_rho_m: f64) -> Option<Self> {
         let mut model = Self { c: start, rho_m: 0.0 };
+        let mut converged = false;
         for _ in 0..8 {
             let (mut a, mut g) = ([[0.0f64; 3]; 3], [0.0f64; 3]);
             for &k in ks {
@@ -252,17 +270,29 @@ impl SmallCircle {
             model.c = Point::new(model.c.x + step[0], model.c.y + step[1]);
             model.rho_m = (model.rho_m + step[2]).clamp(0.0, max_rho_m);
             if step[0].hypot(step[1]) < 1e-6 && step[2].abs() < 1e-6 {
+                converged = true;
                 break;
             }
         }
-        model.c.x.is_finite().then_some(model).filter(|m| m.c.y.is_finite())
+        let finite = model.c.x.is_finite() && model.c.y.is_finite() && model.rho_m.is_finite();
+        if !(converged && finite && model.c.dist(start) <= 2.0 * max_rho_m) || ks.is_empty() {
+            return None;
+        }
+        let mut sse = 0.0;
+        for &k in ks {
+            let p = &ctx.preps[k];
+            sse += ((p.ellipse.delta_d_m - model.predict(p.ellipse.focus_a, p.ellipse.focus_b)?.0) / p.sigma_m).powi(2);
+        }
+        ((sse / ks.len() as f64).sqrt() <= ctx.params.band_sigmas).then_some(model)
     }
 }
 
-/// Adds to `touches` (at the reflector's point `at`) every echo neither
-/// skipped, used nor already touched whose Δd a [`SmallCircle`] fitted to
-/// the touched echoes predicts within kσ, in two rounds (fit, extend,
-/// refit, extend), and records their measurements.
+/// Adds to `touches` echoes neither skipped nor used, of measurements not
+/// yet touched, whose Δd a [`SmallCircle`] fitted to the touched echoes
+/// predicts within kσ (one per measurement, the nearest: a measurement hears
+/// one reflection of one reflector), each at its reflection point on the
+/// circle, in two rounds (fit, extend, refit, extend); records their
+/// measurements.
 fn explain_more(
     ctx: &Ctx,
     skip: &[bool],
@@ -275,20 +305,23 @@ fn explain_more(
     for _ in 0..2 {
         let ks: Vec<usize> = touches.iter().map(|&(k, _)| k).collect();
         let Some(model) = SmallCircle::fit(ctx, &ks, at, p.point_radius_m) else { return };
-        let mut touched = vec![false; ctx.preps.len()];
-        ks.iter().for_each(|&k| touched[k] = true);
+        // The nearest explained echo of each measurement not yet touched.
+        let mut best: Vec<Option<(usize, f64)>> = vec![None; ctx.meas.len()];
         for (k, prep) in ctx.preps.iter().enumerate() {
-            if skip[k] || echo_used[k] || touched[k] {
+            if skip[k] || echo_used[k] || meas_seen.contains(&prep.meas) {
                 continue;
             }
             let e = &prep.ellipse;
-            let explained = model
-                .predict(e.focus_a, e.focus_b)
-                .is_some_and(|(pred, _)| (e.delta_d_m - pred).abs() <= p.band_sigmas * prep.sigma_m);
-            if explained {
-                touches.push((k, at));
-                meas_seen.insert(prep.meas);
+            let Some((pred, _)) = model.predict(e.focus_a, e.focus_b) else { continue };
+            let miss = (e.delta_d_m - pred).abs() / prep.sigma_m;
+            if miss <= p.band_sigmas && best[prep.meas].is_none_or(|(_, m)| miss < m) {
+                best[prep.meas] = Some((k, miss));
             }
+        }
+        for (meas, &(k, _)) in best.iter().enumerate().filter_map(|(m, b)| b.as_ref().map(|b| (m, b))) {
+            let e = &ctx.preps[k].ellipse;
+            touches.push((k, model.specular_point(e.focus_a, e.focus_b)));
+            meas_seen.insert(meas);
         }
     }
 }
@@ -338,7 +371,11 @@ fn point_ambiguous(ctx: &Ctx, ks: &[usize], at: Point) -> bool {
     } else {
         srcs.into_iter().chain(lsts).collect()
     };
-    // With every focus in one place there is no line, and no mirror to tell apart.
+    // With the moving foci in one place (within the tolerance) there is no
+    // line to mirror across: as `collinear` says, ambiguous.
+    if spread(&moving) <= tol {
+        return true;
+    }
     let Some((c, dir)) = super::principal_axis(&moving) else { return true };
     let n = Point::new(-dir.y, dir.x);
     let mirror = at - n * (2.0 * (at - c).dot(n));
