@@ -335,7 +335,8 @@ fn solve3(a: [[f64; 3]; 3], b: [f64; 3]) -> Option<[f64; 3]> {
     };
     let d = det(a);
     let scale = a.iter().flatten().fold(0.0f64, |m, v| m.max(v.abs()));
-    if !(d.abs() > 1e-12 * scale.powi(3)) {
+    // Also refused when the determinant or the scale is NaN.
+    if d.abs().partial_cmp(&(1e-12 * scale.powi(3))) != Some(std::cmp::Ordering::Greater) {
         return None;
     }
     let mut x = [0.0; 3];
