@@ -326,28 +326,17 @@ fn explain_more(
     }
 }
 
-/// Solves the 3×3 system `a·x = b` by Cramer's rule (`None` when `a` is
-/// near-singular); three unknowns do not warrant a linear-algebra crate.
+/// [`super::lines::solve3`] of the normal equations `a·x = b`, refused also
+/// when `a` is near-singular relative to its own scale (or NaN): the
+/// equations are weighted by 1/σ², so an absolute threshold alone means
+/// nothing here.
 fn solve3(a: [[f64; 3]; 3], b: [f64; 3]) -> Option<[f64; 3]> {
-    let det = |m: [[f64; 3]; 3]| {
-        m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
-            + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
-    };
-    let d = det(a);
     let scale = a.iter().flatten().fold(0.0f64, |m, v| m.max(v.abs()));
-    // Also refused when the determinant or the scale is NaN.
+    let d = super::lines::det3(a);
     if d.abs().partial_cmp(&(1e-12 * scale.powi(3))) != Some(std::cmp::Ordering::Greater) {
         return None;
     }
-    let mut x = [0.0; 3];
-    for (col, xc) in x.iter_mut().enumerate() {
-        let mut m = a;
-        for row in 0..3 {
-            m[row][col] = b[row];
-        }
-        *xc = det(m) / d;
-    }
-    Some(x)
+    super::lines::solve3(a, b)
 }
 
 /// Whether a point reflector at `at` is mirror-ambiguous for its echoes

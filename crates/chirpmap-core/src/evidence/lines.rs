@@ -573,13 +573,14 @@ fn curved(ctx: &Ctx, c: &Cand, origin: Point) -> bool {
 const SAGITTA_SIGNIFICANCE: f64 = 2.0;
 
 /// Determinant of a 3 × 3 matrix (cofactor expansion along the first row).
-fn det3(m: [[f64; 3]; 3]) -> f64 {
+pub(crate) fn det3(m: [[f64; 3]; 3]) -> f64 {
     m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
         + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
 }
 
-/// Solves a 3 × 3 linear system by Cramer's rule; `None` when singular.
-fn solve3(a: [[f64; 3]; 3], y: [f64; 3]) -> Option<[f64; 3]> {
+/// Solves a 3 × 3 linear system by Cramer's rule; `None` when singular
+/// (three unknowns do not warrant a linear-algebra crate).
+pub(crate) fn solve3(a: [[f64; 3]; 3], y: [f64; 3]) -> Option<[f64; 3]> {
     let d = det3(a);
     if d.abs() < 1e-12 {
         return None;
