@@ -688,9 +688,10 @@ fn maxima_of(g: &Grid, r: usize, floor: f64, known: Option<Survivors>, scratch: 
         return Vec::new();
     }
     let r = r.min(nx.max(ny));
+    // Both sources give survivors only when they are at most `survivor_limit`.
     let candidates = match known.or_else(|| survivors(g, floor, survivor_limit(g))) {
-        Some(cells) if cells.len() <= survivor_limit(g) => sparse_candidates(g, r, cells),
-        _ => dense_candidates(g, r, floor, scratch),
+        Some(cells) => sparse_candidates(g, r, cells),
+        None => dense_candidates(g, r, floor, scratch),
     };
     thin_plateaus(g, r, candidates)
 }
@@ -709,7 +710,7 @@ type CellBuckets = std::collections::HashMap<(usize, usize), Vec<(usize, usize, 
 /// The cells `(i, j, value)` at or above `floor` and positive, in raster
 /// order, or `None` when they are more than `limit` (1/8 of the grid:
 /// then [`dense_candidates`] is faster). Scanned in parallel chunks.
-fn survivors(g: &Grid, floor: f64, limit: usize) -> Option<Vec<(usize, usize, f64)>> {
+fn survivors(g: &Grid, floor: f64, limit: usize) -> Option<Survivors> {
     use rayon::prelude::*;
     let nx = g.spec.nx;
     let keep = |v: f64| v >= floor && v > 0.0;

@@ -275,7 +275,8 @@ impl SmallCircle {
             }
         }
         let finite = model.c.x.is_finite() && model.c.y.is_finite() && model.rho_m.is_finite();
-        if !(converged && finite && model.c.dist(start) <= 2.0 * max_rho_m) || ks.is_empty() {
+        // (No echoes: the system was singular, so `ks` is not empty here.)
+        if !(converged && finite && model.c.dist(start) <= 2.0 * max_rho_m) {
             return None;
         }
         let mut sse = 0.0;
@@ -350,25 +351,14 @@ fn point_ambiguous(ctx: &Ctx, ks: &[usize], at: Point) -> bool {
     if !ctx.collinear(ks) {
         return false;
     }
-    let foci = |pick: fn(&Ellipse) -> Point| ks.iter().map(|&k| pick(&ctx.preps[k].ellipse)).collect::<Vec<_>>();
-    let (srcs, lsts) = (foci(|e| e.focus_a), foci(|e| e.focus_b));
-    let spread = |ps: &[Point]| ps.iter().map(|p| p.dist(ps[0])).fold(0.0, f64::max);
-    let tol = ctx.params.collinear_tol_m;
-    let moving = if spread(&srcs) <= tol {
-        lsts
-    } else if spread(&lsts) <= tol {
-        srcs
-    } else {
-        srcs.into_iter().chain(lsts).collect()
-    };
+    let moving = ctx.moving_foci(ks);
     // With the moving foci in one place (within the tolerance) there is no
     // line to mirror across: as `collinear` says, ambiguous.
-    if spread(&moving) <= tol {
+    if super::foci_spread(&moving) <= ctx.params.collinear_tol_m {
         return true;
     }
-    let Some((c, dir)) = super::principal_axis(&moving) else { return true };
-    let n = Point::new(-dir.y, dir.x);
-    let mirror = at - n * (2.0 * (at - c).dot(n));
+    let Some(axis) = super::principal_axis(&moving) else { return true };
+    let mirror = super::reflect_across(at, axis);
     let path = |p: Point, e: &Ellipse| e.focus_a.dist(p) + p.dist(e.focus_b);
     ks.iter().all(|&k| {
         let prep = &ctx.preps[k];

@@ -706,10 +706,7 @@ fn mirror_twin(ctx: &Ctx, a: &LineOut, origin: Point) -> Option<(f64, f64)> {
     let srcs: Vec<Point> = ks.iter().map(|&k| ctx.preps[k].ellipse.focus_a).collect();
     let lsts: Vec<Point> = ks.iter().map(|&k| ctx.preps[k].ellipse.focus_b).collect();
     let fixed = |ps: &[Point]| ps.iter().all(|p| p.dist(ps[0]) <= tol);
-    let reflect = |p: Point, (c, d): (Point, Point)| {
-        let v = p - c;
-        c + d * (2.0 * v.dot(d)) - v
-    };
+    let reflect = super::reflect_across;
     let n = Point::from_angle(a.theta);
     let (f, moving) = if !srcs.is_empty() && fixed(&srcs) {
         (srcs[0], lsts)

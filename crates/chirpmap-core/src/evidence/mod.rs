@@ -264,21 +264,23 @@ impl Ctx<'_> {
     /// listeners when all sources coincide, sources when all listeners do,
     /// all foci otherwise.
     pub fn collinear(&self, echoes: &[usize]) -> bool {
+        !echoes.is_empty() && max_line_deviation(&self.moving_foci(echoes)) <= self.params.collinear_tol_m
+    }
+
+    /// The foci of `echoes` that move: the listeners when all sources
+    /// coincide (within `collinear_tol_m`), the sources when all listeners
+    /// do, all foci otherwise.
+    pub fn moving_foci(&self, echoes: &[usize]) -> Vec<Point> {
         let tol = self.params.collinear_tol_m;
         let srcs: Vec<Point> = echoes.iter().map(|&k| self.preps[k].ellipse.focus_a).collect();
         let lsts: Vec<Point> = echoes.iter().map(|&k| self.preps[k].ellipse.focus_b).collect();
-        let spread = |ps: &[Point]| ps.iter().map(|p| p.dist(ps[0])).fold(0.0, f64::max);
-        if srcs.is_empty() {
-            return false;
-        }
-        let pts: Vec<Point> = if spread(&srcs) <= tol {
+        if foci_spread(&srcs) <= tol {
             lsts
-        } else if spread(&lsts) <= tol {
+        } else if foci_spread(&lsts) <= tol {
             srcs
         } else {
             srcs.into_iter().chain(lsts).collect()
-        };
-        max_line_deviation(&pts) <= tol
+        }
     }
 
     /// The line through the foci of `echoes` (centroid, unit direction):
@@ -289,6 +291,17 @@ impl Ctx<'_> {
             echoes.iter().flat_map(|&k| [self.preps[k].ellipse.focus_a, self.preps[k].ellipse.focus_b]).collect();
         principal_axis(&pts)
     }
+}
+
+/// The mirror image of `p` across the line through `c` with unit direction `d`.
+pub(crate) fn reflect_across(p: Point, (c, d): (Point, Point)) -> Point {
+    let v = p - c;
+    c + d * (2.0 * v.dot(d)) - v
+}
+
+/// Largest distance of a point of `ps` from the first (0 when empty).
+pub(crate) fn foci_spread(ps: &[Point]) -> f64 {
+    ps.first().map_or(0.0, |&p0| ps.iter().map(|p| p.dist(p0)).fold(0.0, f64::max))
 }
 
 /// Centroid and unit direction of the principal axis of `pts`.
