@@ -169,7 +169,7 @@ pub struct Ranger {
     /// Direct-only responses of the template, keyed by method and layout.
     models: HashMap<(Method, usize, usize), Vec<f64>>,
     /// Gram matrices of the gap method's direct-sound fit, by frame offset and length.
-    grams: HashMap<(usize, usize), [[f64; 3]; 3]>,
+    grams: HashMap<(usize, usize), Option<[[f64; 3]; 3]>>,
 }
 
 /// Frames per chirp in the gap method (evenly spread; the median is taken).
@@ -289,13 +289,8 @@ impl Ranger {
         if lo + 3 >= hi {
             return None;
         }
-        if !self.grams.contains_key(&(off, frame))
-            && let Some(g) = direct_gram(tpl, off, frame)
-        {
-            self.grams.insert((off, frame), g);
-        }
         if SUBTRACT_DIRECT
-            && let Some(g) = self.grams.get(&(off, frame)).copied()
+            && let Some(g) = *self.grams.entry((off, frame)).or_insert_with(|| direct_gram(tpl, off, frame))
             && let Some(res) = direct_residual(seg, tpl, off, frame, &g)
         {
             // The direct sound removed in the time domain: the reflection's
@@ -514,13 +509,19 @@ impl Ranger {
 /// reflected peak (see [`direct_residual`]).
 const SUBTRACT_DIRECT: bool = true;
 
+/// The template at offsets `off − 1`, `off`, `off + 1`, `frame` samples each
+/// (the direct sound's regressors), or `None` at the template's edges.
+fn direct_regressors(tpl: &ChirpTemplate, off: usize, frame: usize) -> Option<Vec<&[f32]>> {
+    let base = off.checked_sub(1)?;
+    (0..3).map(|k| tpl.real.get(base + k..base + k + frame)).collect()
+}
+
 /// The three regressors of [`direct_residual`] for template offset `off`
 /// (`tpl.real[off−1+k ..]`, k = 0, 1, 2) and their Gram matrix; `None` at
 /// the template's edges. The Gram matrix depends only on the template, so
 /// [`Ranger`] computes it once per frame position.
 fn direct_gram(tpl: &ChirpTemplate, off: usize, frame: usize) -> Option<[[f64; 3]; 3]> {
-    let base = off.checked_sub(1)?;
-    let regs: Vec<&[f32]> = (0..3).map(|k| tpl.real.get(base + k..base + k + frame)).collect::<Option<_>>()?;
+    let regs = direct_regressors(tpl, off, frame)?;
     let mut g = [[0.0f64; 3]; 3];
     for i in 0..3 {
         for j in 0..3 {
@@ -539,8 +540,7 @@ fn dot_f64(a: &[f32], b: &[f32]) -> f64 {
 /// direct arrival's sub-sample onset error), `g` their Gram matrix
 /// ([`direct_gram`]). `None` at the template's edges.
 fn direct_residual(seg: &[f32], tpl: &ChirpTemplate, off: usize, frame: usize, g: &[[f64; 3]; 3]) -> Option<Vec<f32>> {
-    let base = off.checked_sub(1)?;
-    let regs: Vec<&[f32]> = (0..3).map(|k| tpl.real.get(base + k..base + k + frame)).collect::<Option<_>>()?;
+    let regs = direct_regressors(tpl, off, frame)?;
     let mut r = [0.0f64; 3];
     for i in 0..3 {
         r[i] = dot_f64(regs[i], seg);

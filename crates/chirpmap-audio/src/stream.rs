@@ -318,6 +318,16 @@ impl<R> Default for Visits<R> {
     }
 }
 
+impl<R> Visits<R> {
+    /// Records what [`visit_all`] returned.
+    fn extend(&mut self, got: Vec<(usize, f64, R)>) {
+        for (onset, ncc, r) in got {
+            self.ncc.insert(onset, ncc);
+            self.results.insert(onset, r);
+        }
+    }
+}
+
 /// First pass of [`crate::detect::detect_chirps`] over a stream of `len`
 /// high-passed samples (the same errors, in the same order, for the same samples).
 pub fn scan_chirps<S: BlockSource + Send + ?Sized>(
@@ -419,6 +429,18 @@ impl Kept {
     }
 }
 
+/// Applies `set` to `buf`'s elements from its start with the kept samples
+/// from `from` on (as many as are kept, at most `buf.len()`); returns how
+/// many there were.
+fn fill_from(kept: &Kept, from: usize, buf: &mut [Complex32], set: impl Fn(&mut Complex32, f32)) -> usize {
+    let mut k = 0;
+    for p in kept.pieces(from, from + buf.len()) {
+        buf[k..k + p.len()].iter_mut().zip(p).for_each(|(b, v)| set(b, *v));
+        k += p.len();
+    }
+    k
+}
+
 /// Correlates the block pair starting at lag `s` (samples from `kept`) and
 /// writes its chunk maxima to `segs`, in lag order: the same values,
 /// compared in the same order, as `detect_chirps`. With `level`, also
@@ -437,25 +459,12 @@ fn correlate_pair(
     level: bool,
 ) -> Option<f32> {
     let (fwd, inv) = plans;
-    let nfft = buf.len();
     let s2 = s + step;
     // Samples past the stream's end are zeros.
-    let mut k = 0;
-    for p in kept.pieces(s, s + nfft) {
-        for (b, v) in buf[k..k + p.len()].iter_mut().zip(p) {
-            *b = Complex32::new(*v, 0.0);
-        }
-        k += p.len();
-    }
+    let k = fill_from(kept, s, buf, |b, v| *b = Complex32::new(v, 0.0));
     buf[k..].fill(Complex32::new(0.0, 0.0));
     if s2 < n_lags {
-        let mut k = 0;
-        for p in kept.pieces(s2, s2 + nfft) {
-            for (b, v) in buf[k..k + p.len()].iter_mut().zip(p) {
-                b.im = *v;
-            }
-            k += p.len();
-        }
+        fill_from(kept, s2, buf, |b, v| b.im = v);
     }
     fwd.process_with_scratch(buf, scratch);
     for (b, hh) in buf.iter_mut().zip(h) {
@@ -648,6 +657,11 @@ fn scan_with_cap<S: BlockSource + Send + ?Sized, R: Send>(
         peaks: visitor.as_ref().map(|_| Peaks { before: sel_before, after: sel_after, ..Peaks::default() }),
     };
     let spans = visitor.as_ref().map_or((0, 0), |v| (v.before, v.after.max(m)));
+    // The windows of the peaks `due` visited (nothing without a visitor).
+    let visit_due = |kept: &Kept, due: &[(usize, f32)]| match visitor.as_ref() {
+        Some(v) => visit_all(kept, due, len, m, spans, &ncc_of, v.visit),
+        None => Vec::new(),
+    };
     let mut visits = Visits::default();
     // Peaks whose windows are still to visit, in onset order.
     let mut due: Vec<(usize, f32)> = Vec::new();
@@ -708,19 +722,13 @@ fn scan_with_cap<S: BlockSource + Send + ?Sized, R: Send>(
                         }
                         Ok(eof)
                     },
-                    || match visitor.as_ref() {
-                        Some(v) => visit_all(kept_ref, &now, len, m, spans, &ncc_of, v.visit),
-                        None => Vec::new(),
-                    },
+                    || visit_due(kept_ref, &now),
                 )
             },
         );
         eof = read?;
         kept.push(next);
-        for (onset, ncc, r) in got {
-            visits.ncc.insert(onset, ncc);
-            visits.results.insert(onset, r);
-        }
+        visits.extend(got);
         let floor = level.map_or(f32::INFINITY, |l| MIN_PEAK_RATIO as f32 * l);
         prev = Some((std::mem::take(&mut segs), floor));
         s += 2 * step;
@@ -742,17 +750,8 @@ fn scan_with_cap<S: BlockSource + Send + ?Sized, R: Send>(
     }
     let Chunks { med, global, mut cands, .. } = st;
     // The last peaks (every window ends within the samples read) while the median is found.
-    let (median, got) = rayon::join(
-        || med.finish(),
-        || match visitor.as_ref() {
-            Some(v) => visit_all(&kept, &due, len, m, spans, &ncc_of, v.visit),
-            None => Vec::new(),
-        },
-    );
-    for (onset, ncc, r) in got {
-        visits.ncc.insert(onset, ncc);
-        visits.results.insert(onset, r);
-    }
+    let (median, got) = rayon::join(|| med.finish(), || visit_due(&kept, &due));
+    visits.extend(got);
     // The rest of the stream (samples after the last lag's template).
     kept.drop_before(usize::MAX, &mut any_nonzero);
     let mut x0 = kept.x0;
@@ -779,7 +778,6 @@ fn scan_with_cap<S: BlockSource + Send + ?Sized, R: Send>(
     let thr = (MIN_PEAK_RATIO as f32 * median).max(0.01 * global);
     cands.retain(|c| c.1 >= thr);
     cands.sort_by(|a, b| b.1.total_cmp(&a.1));
-    let before = ((0.9 * m as f64) as usize).max(1);
     if !echo.is_finite() || echo > len as f64 {
         return Err(AudioError::InvalidParam {
             field: "--max-delta-d",
@@ -796,8 +794,9 @@ fn scan_with_cap<S: BlockSource + Send + ?Sized, R: Send>(
             duration_s: tpl.chirp.duration_s(),
             median,
             cands,
-            before,
-            after: m + echo as usize,
+            before: sel_before,
+            // `echo` is finite and at most `len` here, so this is `m + echo`.
+            after: sel_after,
             tpl_norm,
         },
         visits,

@@ -318,12 +318,9 @@ fn plot_chirp(
             f_r,
         )
     };
-    std::thread::scope(|scope| {
-        let first = scope.spawn(spectrogram);
-        let second = spectrum();
-        first.join().map_err(|_| anyhow::anyhow!("drawing the spectrogram failed"))??;
-        second
-    })
+    let (first, second) = rayon::join(spectrogram, spectrum);
+    first?;
+    second
 }
 
 /// Reads one channel of a WAV (clipping warned about, silence refused with a hint).

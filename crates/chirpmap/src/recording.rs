@@ -323,13 +323,11 @@ impl RangeReport {
             if k == mid {
                 let s0 = r.saturating_sub(plot_before);
                 window = x[s0..(r + plot_after).min(x.len())].to_vec();
-                window_start = r - s0;
+                window_start = ranges[i].0 + s0; // where `window` starts in the recording
             }
         })?;
         let estimates: Vec<Vec<Option<Estimate>>> =
             estimates.into_iter().map(|e| e.unwrap_or_else(|| vec![None; methods.len()])).collect();
-        let onset_mid = dets.get(dets.len() / 2).map_or(0, |d| d.onset_sample);
-        let window_start = onset_mid - window_start;
         let chirps: Vec<RangedChirp> = dets.into_iter().zip(estimates).collect();
         let report = report_of(chirps, methods, geom, fs, &tpl, &lim);
         let prep = Prepared { x: window, tpl, lim, sample_rate_hz: fs, duration_s: n as f64 / fs };
