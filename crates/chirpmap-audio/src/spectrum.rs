@@ -104,11 +104,19 @@ pub fn peak_in(v: &[f64], lo: usize, hi: usize) -> Option<(f64, f64)> {
 /// zero-padded to `nfft`, by a real-input FFT (equal to the complex FFT's
 /// first half within f32 rounding; see the test against the complex path).
 pub fn magnitude_spectrum(cache: &mut FftCache, frame: &[f32], nfft: usize) -> Vec<f64> {
+    magnitude_bins(cache, frame, nfft, 0..usize::MAX)
+}
+
+/// The bins `bins` of [`magnitude_spectrum`] (clamped to its bins 0..=n/2),
+/// the same values, for callers that read no others: the FFT is the same,
+/// the magnitudes are taken only where needed.
+pub fn magnitude_bins(cache: &mut FftCache, frame: &[f32], nfft: usize, bins: std::ops::Range<usize>) -> Vec<f64> {
     let w = cache.hann(frame.len());
     let n = nfft.max(frame.len());
     if n == 0 {
         return Vec::new();
     }
+    let (lo, hi) = (bins.start.min(n / 2 + 1), bins.end.min(n / 2 + 1));
     let plan = cache.plan_real(n);
     let mut input = plan.make_input_vec();
     for (dst, (x, wi)) in input.iter_mut().zip(frame.iter().zip(w.iter())) {
@@ -117,11 +125,15 @@ pub fn magnitude_spectrum(cache: &mut FftCache, frame: &[f32], nfft: usize) -> V
     let mut out = plan.make_output_vec();
     // The buffers come from the plan, so their lengths always match.
     if plan.process(&mut input, &mut out).is_err() {
-        return vec![0.0; n / 2 + 1];
+        return vec![0.0; hi.saturating_sub(lo)];
     }
     // |c| in f64 from the f32 parts: exact squares and one rounding, where
     // `norm` (hypotf) is a libm call per bin (8 % of a gap run's time).
-    out.iter().map(|c| (f64::from(c.re) * f64::from(c.re) + f64::from(c.im) * f64::from(c.im)).sqrt()).collect()
+    out.get(lo..hi)
+        .unwrap_or_default()
+        .iter()
+        .map(|c| (f64::from(c.re) * f64::from(c.re) + f64::from(c.im) * f64::from(c.im)).sqrt())
+        .collect()
 }
 
 /// STFT magnitude (frames × bins) with a Hann window of `frame_len`, hop
