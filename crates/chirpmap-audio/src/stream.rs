@@ -429,16 +429,43 @@ impl Kept {
     }
 }
 
-/// Applies `set` to `buf`'s elements from its start with the kept samples
-/// from `from` on (as many as are kept, at most `buf.len()`); returns how
-/// many there were.
-fn fill_from(kept: &Kept, from: usize, buf: &mut [Complex32], set: impl Fn(&mut Complex32, f32)) -> usize {
+/// Fills `buf` with the kept samples from `re_from` on as real parts and,
+/// with `im_from`, those from `im_from` on as imaginary parts, zeros past what
+/// is kept: the two real blocks of one complex FFT, written in one pass (a
+/// second pass writing the imaginary parts alone re-read and re-wrote the
+/// 2 MB buffer for every block pair).
+fn fill_pair(kept: &Kept, re_from: usize, im_from: Option<usize>, buf: &mut [Complex32]) {
+    let n = buf.len();
+    let mut re = kept.pieces(re_from, re_from + n);
+    let mut im = im_from.into_iter().flat_map(|f| kept.pieces(f, f + n));
+    // Pieces are never empty: an empty slice means "take the next one".
+    let (mut a, mut b): (&[f32], &[f32]) = (&[], &[]);
     let mut k = 0;
-    for p in kept.pieces(from, from + buf.len()) {
-        buf[k..k + p.len()].iter_mut().zip(p).for_each(|(b, v)| set(b, *v));
-        k += p.len();
+    while k < n {
+        if a.is_empty() {
+            a = re.next().unwrap_or_default();
+        }
+        if b.is_empty() {
+            b = im.next().unwrap_or_default();
+        }
+        let m = match (a.len(), b.len()) {
+            (0, 0) => break,
+            (0, m) | (m, 0) => m,
+            (la, lb) => la.min(lb),
+        };
+        let dst = &mut buf[k..k + m];
+        if b.is_empty() {
+            dst.iter_mut().zip(&a[..m]).for_each(|(d, x)| *d = Complex32::new(*x, 0.0));
+        } else if a.is_empty() {
+            dst.iter_mut().zip(&b[..m]).for_each(|(d, y)| *d = Complex32::new(0.0, *y));
+        } else {
+            dst.iter_mut().zip(&a[..m]).zip(&b[..m]).for_each(|((d, x), y)| *d = Complex32::new(*x, *y));
+        }
+        a = &a[m.min(a.len())..];
+        b = &b[m.min(b.len())..];
+        k += m;
     }
-    k
+    buf[k..].fill(Complex32::new(0.0, 0.0));
 }
 
 /// Correlates the block pair starting at lag `s` (samples from `kept`) and
@@ -461,11 +488,7 @@ fn correlate_pair(
     let (fwd, inv) = plans;
     let s2 = s + step;
     // Samples past the stream's end are zeros.
-    let k = fill_from(kept, s, buf, |b, v| *b = Complex32::new(v, 0.0));
-    buf[k..].fill(Complex32::new(0.0, 0.0));
-    if s2 < n_lags {
-        fill_from(kept, s2, buf, |b, v| b.im = v);
-    }
+    fill_pair(kept, s, (s2 < n_lags).then_some(s2), buf);
     fwd.process_with_scratch(buf, scratch);
     for (b, hh) in buf.iter_mut().zip(h) {
         *b *= hh;
