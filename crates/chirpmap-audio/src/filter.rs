@@ -236,13 +236,7 @@ mod tests {
     /// (the oracle is the loop they replace), zeros and signed zeros included.
     #[test]
     fn smoothing_in_fours_is_the_plain_sum() {
-        let mut r = 5u64;
-        let mut next = || {
-            r ^= r << 13;
-            r ^= r >> 7;
-            r ^= r << 17;
-            r
-        };
+        let mut next = crate::test_rng::xorshift(5);
         for case in 0..300 {
             let window = [3usize, 5, 7, 9, 11, 17][case % 6];
             let sg = SavitzkyGolay::new(window, 2).unwrap();

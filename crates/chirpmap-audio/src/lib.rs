@@ -21,6 +21,20 @@ pub mod stream;
 pub mod synth;
 pub mod wav;
 
+#[cfg(test)]
+pub(crate) mod test_rng {
+    /// Marsaglia's xorshift64 (2003), seeded with a non-zero `r`: the unit
+    /// tests' deterministic random cases.
+    pub(crate) fn xorshift(mut r: u64) -> impl FnMut() -> u64 {
+        move || {
+            r ^= r << 13;
+            r ^= r >> 7;
+            r ^= r << 17;
+            r
+        }
+    }
+}
+
 pub use detect::{ChirpTemplate, Detection, detect_chirps};
 pub use error::AudioError;
 pub use ranging::{Estimate, Method, RangeLimits, Ranger, wall_distance_m};

@@ -630,13 +630,7 @@ mod tests {
             }
             out
         }
-        let mut r = 7u64;
-        let mut next = || {
-            r ^= r << 13;
-            r ^= r >> 7;
-            r ^= r << 17;
-            r
-        };
+        let mut next = crate::test_rng::xorshift(7);
         for case in 0..400 {
             let n = (next() % 40) as usize;
             let n_model = (next() % 45) as usize;
