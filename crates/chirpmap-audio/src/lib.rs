@@ -21,6 +21,12 @@ pub mod stream;
 pub mod synth;
 pub mod wav;
 
+pub use detect::{ChirpTemplate, Detection, detect_chirps};
+pub use error::AudioError;
+pub use ranging::{Estimate, Method, RangeLimits, Ranger, wall_distance_m};
+pub use synth::{SynthConfig, synthesize};
+pub use wav::{Recording, SampleFormat, read_wav, read_wav_bytes, write_wav};
+
 #[cfg(test)]
 pub(crate) mod test_rng {
     /// Marsaglia's xorshift64 (2003), seeded with a non-zero `r`: the unit
@@ -34,9 +40,3 @@ pub(crate) mod test_rng {
         }
     }
 }
-
-pub use detect::{ChirpTemplate, Detection, detect_chirps};
-pub use error::AudioError;
-pub use ranging::{Estimate, Method, RangeLimits, Ranger, wall_distance_m};
-pub use synth::{SynthConfig, synthesize};
-pub use wav::{Recording, SampleFormat, read_wav, read_wav_bytes, write_wav};
