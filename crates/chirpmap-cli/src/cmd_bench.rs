@@ -17,7 +17,7 @@ pub struct BenchArgs {
     /// and corner echoes, an L-shaped corridor, field environments A and B) or `doppler` (the moving-wall
     /// scene at several listener speeds, every `map --wav` method and chirp pattern).
     pub suite: String,
-    /// Output directory (maps.csv: one row per case, run and mapper; maps.md: means per case and mapper).
+    /// Output directory (maps.csv: one row per case, run and mapper; maps.md: means per case and mapper, and the Table I scores paired by run with standard errors).
     #[arg(long)]
     pub out: PathBuf,
     /// Runs of each Table I scene (1, 10, 50 ms).

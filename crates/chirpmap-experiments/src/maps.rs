@@ -382,6 +382,63 @@ pub fn rows_markdown(rows: &[Row]) -> String {
             f(m(&|r| Some(r.elapsed_s)), 3),
         );
     }
+    s + &paired_markdown(rows)
+}
+
+/// Mean and standard error (sample standard deviation / √n) of `v`; `None`
+/// below two values.
+fn mean_se(v: &[f64]) -> Option<(f64, f64)> {
+    let n = v.len();
+    if n < 2 {
+        return None;
+    }
+    let mean = v.iter().sum::<f64>() / n as f64;
+    let var = v.iter().map(|x| (x - mean) * (x - mean)).sum::<f64>() / (n - 1) as f64;
+    Some((mean, (var / n as f64).sqrt()))
+}
+
+/// The evidence mapper against the paper mapper run by run, for the cases
+/// with several runs (Table I): the mean per-run difference of each score
+/// with its standard error, and the ratio of the score_highlight means. Five
+/// runs are 15 obstacle-runs; a difference within two standard errors is not
+/// a verdict (EXPERIMENTS.md, "Table I rows at 100 runs").
+fn paired_markdown(rows: &[Row]) -> String {
+    let mut keys: Vec<(&str, &'static str)> = Vec::new();
+    for r in rows {
+        if !keys.contains(&(r.case.as_str(), r.echoes_from)) {
+            keys.push((r.case.as_str(), r.echoes_from));
+        }
+    }
+    let mut s = String::new();
+    for (case, from) in keys {
+        let of = |mapper: &str| -> Vec<&Row> {
+            rows.iter().filter(|r| r.case == case && r.echoes_from == from && r.mapper == mapper).collect()
+        };
+        let (paper, evidence) = (of("paper"), of("evidence"));
+        // Runs mapped by both, each with both scores.
+        let pairs: Vec<[f64; 4]> = evidence
+            .iter()
+            .filter_map(|e| {
+                let p = paper.iter().find(|p| p.run == e.run)?;
+                Some([e.score_obstacle?, p.score_obstacle?, e.score_highlight?, p.score_highlight?])
+            })
+            .collect();
+        let diff = |i: usize| mean_se(&pairs.iter().map(|q| q[i] - q[i + 1]).collect::<Vec<f64>>());
+        let (Some((d_obs, se_obs)), Some((d_hl, se_hl))) = (diff(0), diff(2)) else { continue };
+        let mean_of = |i: usize| pairs.iter().map(|q| q[i]).sum::<f64>() / pairs.len() as f64;
+        let ratio = if mean_of(3) > 0.0 { format!("{:.2}×", mean_of(2) / mean_of(3)) } else { "–".to_string() };
+        if s.is_empty() {
+            s = String::from(
+                "\nEvidence − paper, paired by run (mean ± standard error):\n\n\
+                 | case | echoes | runs | Δ score_obstacle | Δ score_highlight | score_highlight ratio |\n\
+                 |---|---|---|---|---|---|\n",
+            );
+        }
+        s += &format!(
+            "| {case} | {from} | {} | {d_obs:+.3} ± {se_obs:.3} | {d_hl:+.3} ± {se_hl:.3} | {ratio} |\n",
+            pairs.len()
+        );
+    }
     s
 }
 
@@ -400,5 +457,36 @@ mod tests {
         }
         let csv = rows_csv(&[run_case(&cases[0], MapperKind::Paper).expect("row")]);
         assert_eq!(csv.lines().count(), 2);
+    }
+
+    /// The paired table against values worked by hand: differences
+    /// (0.2, 0.4, 0.0) have mean 0.2 and standard error √(0.04/3) = 0.115.
+    #[test]
+    fn paired_table_has_mean_and_standard_error_of_the_run_differences() {
+        let cases = exact_cases().expect("cases");
+        let base = run_case(&cases[0], MapperKind::Paper).expect("row");
+        let row = |run: u64, mapper: &'static str, obs: f64, hl: f64| Row {
+            case: "t".into(),
+            run,
+            mapper,
+            score_obstacle: Some(obs),
+            score_highlight: Some(hl),
+            ..base.clone()
+        };
+        let rows = vec![
+            row(0, "paper", 0.5, 0.25),
+            row(0, "evidence", 0.7, 0.5),
+            row(1, "paper", 0.5, 0.25),
+            row(1, "evidence", 0.9, 0.5),
+            row(2, "paper", 0.5, 0.25),
+            row(2, "evidence", 0.5, 0.5),
+            // A single-run case gets no paired row.
+            Row { case: "single".into(), ..row(0, "evidence", 1.0, 1.0) },
+            Row { case: "single".into(), ..row(0, "paper", 1.0, 1.0) },
+        ];
+        let md = rows_markdown(&rows);
+        assert!(md.contains("| t | exact | 3 | +0.200 ± 0.115 | +0.250 ± 0.000 | 2.00× |"), "{md}");
+        assert!(!md.contains("| single | exact | 1 |"), "{md}");
+        assert_eq!(mean_se(&[1.0]), None);
     }
 }
