@@ -6,8 +6,10 @@ For each true obstacle (a circle of the run's scene.toml), the echoes of echoes.
 its specular path (|S-C| + |C-L| - 2 r cos(beta/2), to first order in r) are fitted by a point
 reflector (|S-P| + |P-L| - |S-L| = delta_d, weighted by sigma_m, scipy least_squares) twice: started on
 the circle's near side, and started at that point's mirror across the listener's walk (the principal
-axis of the listener positions). Prints, per obstacle, the RMS residual (in sigma) of both fits and
-how far each lands from the nearest obstacle surface; then a summary over all directories.
+axis of the listener positions). The mirror is only a starting point: with the source off the walk no
+exact twin exists for a point, and the fit moves to the far-side point that best explains the same
+echoes. Prints, per obstacle, the RMS residual (in sigma) of both fits and how far each lands from the
+nearest obstacle surface; then a summary over all directories.
 
 Usage: twin_fit.py DIR [DIR ...]   (each DIR from `chirpmap simulate SCENE --out DIR`)
 """

@@ -459,14 +459,18 @@ mod tests {
         assert_eq!(csv.lines().count(), 2);
     }
 
-    /// The paired table against values worked by hand: differences
-    /// (0.2, 0.4, 0.0) have mean 0.2 and standard error √(0.04/3) = 0.115.
+    /// The paired table against values worked by hand, rows shuffled so that
+    /// only pairing by run gives them: "t" pairs runs 0–2 (run 3 has no
+    /// paper row), score_obstacle differences (0.3, 0.4, −0.1): mean 0.2,
+    /// standard error √(0.07/3) = 0.153; score_highlight differences (0.25,
+    /// 0.25, 0.4): mean 0.3, standard error 0.05; ratio of the means
+    /// 0.5333 / 0.2333 = 2.29. "zero" has a paper mean of 0: no ratio.
     #[test]
     fn paired_table_has_mean_and_standard_error_of_the_run_differences() {
         let cases = exact_cases().expect("cases");
         let base = run_case(&cases[0], MapperKind::Paper).expect("row");
-        let row = |run: u64, mapper: &'static str, obs: f64, hl: f64| Row {
-            case: "t".into(),
+        let row = |case: &str, run: u64, mapper: &'static str, obs: f64, hl: f64| Row {
+            case: case.into(),
             run,
             mapper,
             score_obstacle: Some(obs),
@@ -474,18 +478,24 @@ mod tests {
             ..base.clone()
         };
         let rows = vec![
-            row(0, "paper", 0.5, 0.25),
-            row(0, "evidence", 0.7, 0.5),
-            row(1, "paper", 0.5, 0.25),
-            row(1, "evidence", 0.9, 0.5),
-            row(2, "paper", 0.5, 0.25),
-            row(2, "evidence", 0.5, 0.5),
+            row("t", 2, "evidence", 0.5, 0.5),
+            row("t", 0, "paper", 0.4, 0.25),
+            row("t", 1, "evidence", 0.9, 0.6),
+            row("t", 3, "evidence", 1.0, 1.0),
+            row("t", 0, "evidence", 0.7, 0.5),
+            row("t", 2, "paper", 0.6, 0.1),
+            row("t", 1, "paper", 0.5, 0.35),
+            row("zero", 0, "paper", 0.5, 0.0),
+            row("zero", 0, "evidence", 0.5, 0.2),
+            row("zero", 1, "evidence", 0.5, 0.4),
+            row("zero", 1, "paper", 0.5, 0.0),
             // A single-run case gets no paired row.
-            Row { case: "single".into(), ..row(0, "evidence", 1.0, 1.0) },
-            Row { case: "single".into(), ..row(0, "paper", 1.0, 1.0) },
+            row("single", 0, "evidence", 1.0, 1.0),
+            row("single", 0, "paper", 1.0, 1.0),
         ];
         let md = rows_markdown(&rows);
-        assert!(md.contains("| t | exact | 3 | +0.200 ± 0.115 | +0.250 ± 0.000 | 2.00× |"), "{md}");
+        assert!(md.contains("| t | exact | 3 | +0.200 ± 0.153 | +0.300 ± 0.050 | 2.29× |"), "{md}");
+        assert!(md.contains("| zero | exact | 2 | +0.000 ± 0.000 | +0.300 ± 0.100 | – |"), "{md}");
         assert!(!md.contains("| single | exact | 1 |"), "{md}");
         assert_eq!(mean_se(&[1.0]), None);
     }
