@@ -1217,6 +1217,9 @@ mod tests {
             bent.len(),
             short.len()
         );
+        let (with_screen, _) = screen_and_refine(&ctx, &tan, &g, &peaks);
+        println!("room: {} peaks refined with the screen", with_screen.len());
+        assert!(with_screen.len() < refined.len());
         assert!(kept.len() >= 4, "{} lines", kept.len());
         assert!(range(&kept).0 >= 1.1 * unheard_at_peak(p.ghost_fraction), "{:?}", range(&kept));
         assert!(below(&unheard, unheard_at_peak(p.ghost_fraction)) > unheard.len() / 2);
