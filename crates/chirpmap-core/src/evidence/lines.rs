@@ -1100,10 +1100,8 @@ mod tests {
             })
     }
 
-    /// The batched screening takes exactly the candidates of the one peak at
-    /// a time loop it replaced (the oracle below), whatever the pool's size.
-    #[test]
-    fn batched_screening_is_the_sequential_loop() {
+    /// Runs `f` on the room's context, vote geometry, tangents and peaks.
+    fn with_room<R>(f: impl FnOnce(&Ctx, &Geom, &Tangents, &[(f32, usize, usize)]) -> R) -> R {
         let (echoes, spec) = room_echoes();
         let params = EvidenceParams::default();
         let mut ctx = prepare(&echoes, spec, &params).expect("ctx");
@@ -1111,117 +1109,115 @@ mod tests {
         let g = Geom::new(&ctx);
         let tan = Tangents::new(&ctx, g.origin);
         let peaks = hough_peaks(&ctx, &tan, &g);
-        assert!(peaks.len() > 100, "{} peaks", peaks.len());
+        f(&ctx, &g, &tan, &peaks)
+    }
+
+    /// The one peak at a time loop `screen_and_refine` replaced, with or
+    /// without the unheard-at-peak screen: the refined candidates with the
+    /// heard fraction of their unrefined line, the screened ones, and how
+    /// many peaks were skipped as near a line already found.
+    fn sequential(
+        ctx: &Ctx,
+        g: &Geom,
+        tan: &Tangents,
+        peaks: &[(f32, usize, usize)],
+        screen: bool,
+    ) -> (Vec<(f64, Cand)>, Vec<Cand>, usize) {
         let (p, origin) = (ctx.params, g.origin);
-        let (mut refined, mut screened): (Vec<Cand>, Vec<Cand>) = (Vec::new(), Vec::new());
-        let mut buf = Vec::new();
-        for &(_, t, b) in &peaks {
+        let (mut refined, mut screened, mut near_n, mut buf) = (Vec::<(f64, Cand)>::new(), Vec::new(), 0, Vec::new());
+        for &(_, t, b) in peaks {
             let (theta, rho) = g.line_of(t, b);
             let n = Point::from_angle(theta);
-            let near = refined.iter().chain(&screened).any(|c| {
+            let near = refined.iter().map(|r| &r.1).chain(&screened).any(|c: &Cand| {
                 let mid = (c.p0 + c.p1) * 0.5;
                 angle_diff(theta, c.theta) <= 2.0 * g.bin
                     && (n.dot(mid - origin) - rho).abs() <= 2.0 * g.rho_bin + p.band_sigmas * p.default_sigma_m
             });
             if near {
-                continue;
-            }
-            let set = gather(&tan, theta, rho, 0.0, &mut buf);
-            let touches = touches_in_runs(&ctx, &set, theta, rho, origin);
-            let (p0, p1) = segment_of(theta, rho, origin, &touches);
-            let quick = Cand { theta, rho, touches, p0, p1, rms_sigmas: f64::INFINITY };
-            if curved(&ctx, &quick, origin) || heard_ratio(&ctx, &quick, origin) < unheard_at_peak(p.ghost_fraction) {
-                screened.push(quick);
-                continue;
-            }
-            if let Some(c) = refine(&ctx, &tan, theta, rho, origin, g.bin, g.rho_bin) {
-                refined.push(c);
-            }
-        }
-        for threads in [1, 2, 3] {
-            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
-            let (r, sc) = pool.install(|| screen_and_refine(&ctx, &tan, &g, &peaks));
-            assert!(same(&r, &refined) && same(&sc, &screened), "{threads} threads");
-        }
-        assert!(!refined.is_empty() && !screened.is_empty());
-    }
-
-    /// Every peak refined, and what became of it, against the heard fraction
-    /// of its unrefined line: no line the mapper accepts starts below the
-    /// screen's threshold (with a margin), so screening by it loses none.
-    /// Prints the census BENCHMARKS.md quotes (`-- --nocapture`).
-    #[test]
-    fn peak_census_of_the_room() {
-        let (echoes, spec) = room_echoes();
-        let params = EvidenceParams::default();
-        let mut ctx = prepare(&echoes, spec, &params).expect("ctx");
-        carve_free(&mut ctx).expect("carve");
-        let p = ctx.params;
-        let g = Geom::new(&ctx);
-        let tan = Tangents::new(&ctx, g.origin);
-        let peaks = hough_peaks(&ctx, &tan, &g);
-        let (mut refined, mut screened): (Vec<(f64, Cand)>, Vec<Cand>) = (Vec::new(), Vec::new());
-        let (mut near_n, mut buf) = (0, Vec::new());
-        for &(_, t, b) in &peaks {
-            let (theta, rho) = g.line_of(t, b);
-            let n = Point::from_angle(theta);
-            let near = refined.iter().map(|r| &r.1).chain(&screened).any(|c| {
-                let mid = (c.p0 + c.p1) * 0.5;
-                angle_diff(theta, c.theta) <= 2.0 * g.bin
-                    && (n.dot(mid - g.origin) - rho).abs() <= 2.0 * g.rho_bin + p.band_sigmas * p.default_sigma_m
-            });
-            if near {
                 near_n += 1;
                 continue;
             }
-            let set = gather(&tan, theta, rho, 0.0, &mut buf);
-            let touches = touches_in_runs(&ctx, &set, theta, rho, g.origin);
-            let (p0, p1) = segment_of(theta, rho, g.origin, &touches);
+            let set = gather(tan, theta, rho, 0.0, &mut buf);
+            let touches = touches_in_runs(ctx, &set, theta, rho, origin);
+            let (p0, p1) = segment_of(theta, rho, origin, &touches);
             let quick = Cand { theta, rho, touches, p0, p1, rms_sigmas: f64::INFINITY };
-            if curved(&ctx, &quick, g.origin) {
+            let heard = heard_ratio(ctx, &quick, origin);
+            if curved(ctx, &quick, origin) || (screen && heard < unheard_at_peak(p.ghost_fraction)) {
                 screened.push(quick);
                 continue;
             }
-            let heard_at_peak = heard_ratio(&ctx, &quick, g.origin);
-            if let Some(c) = refine(&ctx, &tan, theta, rho, g.origin, g.bin, g.rho_bin) {
-                refined.push((heard_at_peak, c));
+            if let Some(c) = refine(ctx, tan, theta, rho, origin, g.bin, g.rho_bin) {
+                refined.push((heard, c));
             }
         }
-        // Outcomes in the order `find_lines` tests them.
-        let (mut kept, mut short, mut bent, mut unheard) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
-        for (h, c) in &refined {
-            if c.support() < p.min_support as usize || c.length() < p.min_line_length_m {
-                short.push(*h);
-            } else if curved(&ctx, c, g.origin) {
-                bent.push(*h);
-            } else if heard_ratio(&ctx, c, g.origin) < 1.0 - p.ghost_fraction {
-                unheard.push(*h);
-            } else {
-                kept.push(*h);
+        (refined, screened, near_n)
+    }
+
+    /// The batched screening takes exactly the candidates of the one peak at
+    /// a time loop, whatever the pool's size.
+    #[test]
+    fn batched_screening_is_the_sequential_loop() {
+        with_room(|ctx, g, tan, peaks| {
+            assert!(peaks.len() > 100, "{} peaks", peaks.len());
+            let (refined, screened, _) = sequential(ctx, g, tan, peaks, true);
+            let refined: Vec<Cand> = refined.into_iter().map(|r| r.1).collect();
+            for threads in [1, 2, 3] {
+                let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
+                let (r, sc) = pool.install(|| screen_and_refine(ctx, tan, g, peaks));
+                assert!(same(&r, &refined) && same(&sc, &screened), "{threads} threads");
             }
-        }
-        let range = |v: &[f64]| v.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
-        let below = |v: &[f64], x: f64| v.iter().filter(|&&h| h < x).count();
-        println!(
-            "room: {} peaks, {near_n} near a line already found, {} screened as curved, {} refined: {} kept \
-             (heard at the peak {:.2?}), {} unheard ({} below 0.30, {} below the screen's {}), {} curved, {} short",
-            peaks.len(),
-            screened.len(),
-            refined.len(),
-            kept.len(),
-            range(&kept),
-            unheard.len(),
-            below(&unheard, 0.30),
-            below(&unheard, unheard_at_peak(p.ghost_fraction)),
-            unheard_at_peak(p.ghost_fraction),
-            bent.len(),
-            short.len()
-        );
-        let (with_screen, _) = screen_and_refine(&ctx, &tan, &g, &peaks);
-        println!("room: {} peaks refined with the screen", with_screen.len());
-        assert!(with_screen.len() < refined.len());
-        assert!(kept.len() >= 4, "{} lines", kept.len());
-        assert!(range(&kept).0 >= 1.1 * unheard_at_peak(p.ghost_fraction), "{:?}", range(&kept));
-        assert!(below(&unheard, unheard_at_peak(p.ghost_fraction)) > unheard.len() / 2);
+            assert!(!refined.is_empty() && !screened.is_empty());
+        });
+    }
+
+    /// Every peak refined (no unheard-at-peak screen), and what became of
+    /// it, against the heard fraction of its unrefined line: no line the
+    /// mapper accepts starts below the screen's threshold (with a margin), so
+    /// screening by it loses none. Prints the census BENCHMARKS.md quotes
+    /// (`-- --nocapture`).
+    #[test]
+    fn peak_census_of_the_room() {
+        with_room(|ctx, g, tan, peaks| {
+            let p = ctx.params;
+            let (refined, screened, near_n) = sequential(ctx, g, tan, peaks, false);
+            // Outcomes in the order `find_lines` tests them.
+            let (mut kept, mut short, mut bent, mut unheard) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+            for (h, c) in &refined {
+                if c.support() < p.min_support as usize || c.length() < p.min_line_length_m {
+                    short.push(*h);
+                } else if curved(ctx, c, g.origin) {
+                    bent.push(*h);
+                } else if heard_ratio(ctx, c, g.origin) < 1.0 - p.ghost_fraction {
+                    unheard.push(*h);
+                } else {
+                    kept.push(*h);
+                }
+            }
+            let range =
+                |v: &[f64]| v.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
+            let below = |v: &[f64], x: f64| v.iter().filter(|&&h| h < x).count();
+            let screen = unheard_at_peak(p.ghost_fraction);
+            println!(
+                "room: {} peaks, {near_n} near a line already found, {} screened as curved, {} refined: {} kept \
+                 (heard at the peak {:.2?}), {} unheard ({} below 0.30, {} below the screen's {screen}), {} curved, \
+                 {} short",
+                peaks.len(),
+                screened.len(),
+                refined.len(),
+                kept.len(),
+                range(&kept),
+                unheard.len(),
+                below(&unheard, 0.30),
+                below(&unheard, screen),
+                bent.len(),
+                short.len()
+            );
+            let (with_screen, _) = screen_and_refine(ctx, tan, g, peaks);
+            println!("room: {} peaks refined with the screen", with_screen.len());
+            assert!(with_screen.len() < refined.len());
+            assert!(kept.len() >= 4, "{} lines", kept.len());
+            assert!(range(&kept).0 >= 1.1 * screen, "{:?}", range(&kept));
+            assert!(below(&unheard, screen) > unheard.len() / 2);
+        });
     }
 }
