@@ -355,7 +355,6 @@ pub fn rows_markdown(rows: &[Row]) -> String {
             keys.push(k);
         }
     }
-    let mean = |v: Vec<f64>| (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64);
     let f = |v: Option<f64>, d: usize| v.map_or("–".to_string(), |v| format!("{v:.d$}"));
     let mut s = String::from(
         "| case | echoes | mapper | runs | highlights | surfaces | score_obstacle | score_highlight | F1 | Chamfer (m) | \
@@ -366,7 +365,7 @@ pub fn rows_markdown(rows: &[Row]) -> String {
         let rs: Vec<&Row> =
             rows.iter().filter(|r| r.case == case && r.echoes_from == from && r.mapper == mapper).collect();
         let n = rs.len();
-        let m = |g: &dyn Fn(&Row) -> Option<f64>| mean(rs.iter().filter_map(|r| g(r)).collect());
+        let m = |g: &dyn Fn(&Row) -> Option<f64>| mean(&rs.iter().filter_map(|r| g(r)).collect::<Vec<f64>>());
         let walls = rs.first().map_or(String::new(), |r| format!("{}/{}", r.walls_matched.0, r.walls_matched.1));
         s += &format!(
             "| {case} | {from} | {mapper} | {n} | {} | {} | {} | {} | {} | {} | {walls} | {} | {} | {} | {} |\n",
@@ -385,6 +384,11 @@ pub fn rows_markdown(rows: &[Row]) -> String {
     s + &paired_markdown(rows)
 }
 
+/// Mean of `v`; `None` when empty.
+fn mean(v: &[f64]) -> Option<f64> {
+    (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+}
+
 /// Mean and standard error (sample standard deviation / √n) of `v`; `None`
 /// below two values.
 fn mean_se(v: &[f64]) -> Option<(f64, f64)> {
@@ -392,7 +396,7 @@ fn mean_se(v: &[f64]) -> Option<(f64, f64)> {
     if n < 2 {
         return None;
     }
-    let mean = v.iter().sum::<f64>() / n as f64;
+    let mean = mean(v)?;
     let var = v.iter().map(|x| (x - mean) * (x - mean)).sum::<f64>() / (n - 1) as f64;
     Some((mean, (var / n as f64).sqrt()))
 }
@@ -425,7 +429,7 @@ fn paired_markdown(rows: &[Row]) -> String {
             .collect();
         let diff = |i: usize| mean_se(&pairs.iter().map(|q| q[i] - q[i + 1]).collect::<Vec<f64>>());
         let (Some((d_obs, se_obs)), Some((d_hl, se_hl))) = (diff(0), diff(2)) else { continue };
-        let mean_of = |i: usize| pairs.iter().map(|q| q[i]).sum::<f64>() / pairs.len() as f64;
+        let mean_of = |i: usize| mean(&pairs.iter().map(|q| q[i]).collect::<Vec<f64>>()).unwrap_or(0.0);
         let ratio = if mean_of(3) > 0.0 { format!("{:.2}×", mean_of(2) / mean_of(3)) } else { "–".to_string() };
         if s.is_empty() {
             s = String::from(
