@@ -49,7 +49,7 @@ pub fn run_sweep(
     let jobs = plan.shard_jobs(shard);
     let resumed = file.done.len();
     if let Some(stray) = file.done.keys().find(|j| !jobs.contains(j)) {
-        return Err(ExperimentError::file(&file.path, format!("holds run {stray:?}, which is not in shard {shard:?}")));
+        return Err(ExperimentError::file(&file.path, format!("holds run ({stray}), which is not in shard {shard}")));
     }
     let todo: Vec<Job> = jobs.iter().copied().filter(|j| !file.done.contains_key(j)).collect();
     let total = jobs.len();
@@ -175,7 +175,7 @@ pub fn merge(
             match rows.get(&r.job) {
                 Some(prev) if prev.metrics != r.metrics => {
                     return Err(ExperimentError::Merge(format!(
-                        "run {:?} appears twice with different results (second in {})",
+                        "run ({}) appears twice with different results (second in {})",
                         r.job,
                         d.display()
                     )));

@@ -16,14 +16,14 @@ pub enum ExperimentError {
         /// What is wrong with it.
         msg: String,
     },
-    /// Reading or writing a file failed.
-    #[error("I/O error on {path}: {source}")]
+    /// Reading or writing a file failed. The I/O error is in the message,
+    /// not also a `source`, so that printing the chain says it once.
+    #[error("I/O error on {path}: {err}")]
     Io {
         /// The file being read or written.
         path: String,
         /// The underlying I/O error.
-        #[source]
-        source: std::io::Error,
+        err: std::io::Error,
     },
     /// The simulation of one run failed; `config` is the configuration index, `run` the
     /// run index (random stream), `msg` the simulator's error.
@@ -44,7 +44,7 @@ pub enum ExperimentError {
 impl ExperimentError {
     /// An [`ExperimentError::Io`] naming `path`.
     pub fn io(path: &std::path::Path, source: std::io::Error) -> Self {
-        Self::Io { path: path.display().to_string(), source }
+        Self::Io { path: path.display().to_string(), err: source }
     }
     /// An [`ExperimentError::File`] naming `path`.
     pub fn file(path: &std::path::Path, msg: impl Into<String>) -> Self {

@@ -202,23 +202,35 @@ fn read_rows_with_format(path: &Path, plan: &Plan) -> Result<(Vec<RunRow>, bool)
             return Err(bad("run index"));
         }
         let seed: u64 = named("seed").parse().map_err(|_| bad("seed"))?;
-        let optf = |w: &str| -> Result<Option<f64>, ExperimentError> {
+        // Each value in the range the metric can take (a hand-edited NaN or 7.5
+        // would otherwise flow into the summary's means).
+        let optf = |w: &str, ok: fn(f64) -> bool| -> Result<Option<f64>, ExperimentError> {
             let s = named(w);
-            if s.is_empty() { Ok(None) } else { s.parse().map(Some).map_err(|_| bad(w)) }
+            if s.is_empty() {
+                return Ok(None);
+            }
+            let v: f64 = s.parse().map_err(|_| bad(w))?;
+            if ok(v) { Ok(Some(v)) } else { Err(bad(w)) }
         };
+        let unit = |v: f64| (0.0..=1.0).contains(&v);
+        let length = |v: f64| v.is_finite() && v >= 0.0;
+        let elapsed_s: f64 = named("elapsed_s").parse().map_err(|_| bad("elapsed_s"))?;
+        if !length(elapsed_s) {
+            return Err(bad("elapsed_s"));
+        }
         rows.push(RunRow {
             job: Job { config, run },
             labels,
             seed,
             metrics: RunMetrics {
-                score_obstacle: optf("score_obstacle")?,
-                score_highlight: optf("score_highlight")?,
-                surface_f1: optf("surface_f1")?,
-                chamfer_m: optf("chamfer_m")?,
+                score_obstacle: optf("score_obstacle", unit)?,
+                score_highlight: optf("score_highlight", unit)?,
+                surface_f1: optf("surface_f1", unit)?,
+                chamfer_m: optf("chamfer_m", length)?,
                 n_highlights: named("n_highlights").parse().map_err(|_| bad("n_highlights"))?,
                 n_echoes: named("n_echoes").parse().map_err(|_| bad("n_echoes"))?,
             },
-            elapsed_s: named("elapsed_s").parse().map_err(|_| bad("elapsed_s"))?,
+            elapsed_s,
         });
     }
     Ok((rows, current))
@@ -261,6 +273,9 @@ impl RunsFile {
     /// Opens `dir` for `plan`: a fresh directory is initialised; one holding
     /// this same sweep and shard resumes; anything else is an error.
     pub fn open(dir: &Path, plan: &Plan, shard: Shard) -> Result<Self, ExperimentError> {
+        if dir.exists() && !dir.is_dir() {
+            return Err(ExperimentError::file(dir, "is a file; --out must be a directory (new or a sweep's own)"));
+        }
         std::fs::create_dir_all(dir).map_err(|e| ExperimentError::io(dir, e))?;
         let sweep_path = dir.join(SWEEP_FILE);
         let shard_path = dir.join(SHARD_FILE);
@@ -279,7 +294,20 @@ impl RunsFile {
             Err(_) if path.exists() => {
                 return Err(ExperimentError::file(&path, format!("runs.csv without {SWEEP_FILE}: not ours to extend")));
             }
-            Err(_) => std::fs::write(&sweep_path, &sweep_text).map_err(|e| ExperimentError::io(&sweep_path, e))?,
+            Err(_) => {
+                // A new sweep directory: nothing it writes may be there already
+                // (a user's summary.md would be overwritten at the end).
+                for name in [SHARD_FILE, "summary.csv", "summary.md", "summary.png"] {
+                    let p = dir.join(name);
+                    if p.exists() {
+                        return Err(ExperimentError::file(
+                            &p,
+                            format!("exists but this directory holds no {SWEEP_FILE}: not ours to overwrite; use another --out directory"),
+                        ));
+                    }
+                }
+                std::fs::write(&sweep_path, &sweep_text).map_err(|e| ExperimentError::io(&sweep_path, e))?;
+            }
         }
         match std::fs::read_to_string(&shard_path) {
             Ok(existing) if existing != shard_text => {
@@ -301,7 +329,7 @@ impl RunsFile {
             }
             for r in rows {
                 if done.insert(r.job, r.clone()).is_some() {
-                    return Err(ExperimentError::file(&path, format!("duplicate row for {:?}", r.job)));
+                    return Err(ExperimentError::file(&path, format!("duplicate row for run ({})", r.job)));
                 }
             }
             // Drop a partial last line left by a crash before appending.

@@ -94,6 +94,20 @@ pub struct Job {
     pub run: u64,
 }
 
+/// As runs.csv's columns name it: `config C, run R`.
+impl std::fmt::Display for Job {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "config {}, run {}", self.config, self.run)
+    }
+}
+
+/// As `--shard` takes it: `I/N`.
+impl std::fmt::Display for Shard {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}/{}", self.index, self.count)
+    }
+}
+
 /// `--shard I/N`: shard `I` (0-based) of `N` takes every job whose position in
 /// the plan is `I` modulo `N`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

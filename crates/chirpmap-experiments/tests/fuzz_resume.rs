@@ -32,7 +32,7 @@ fn fake(scene: &Scene, run: u64) -> Result<RunMetrics, String> {
     let x = ((run * 2654435761 + scene.seed) % 1000) as f64 / 1000.0;
     Ok(RunMetrics {
         score_obstacle: Some(x),
-        score_highlight: if run.is_multiple_of(2) { None } else { Some(-x) },
+        score_highlight: if run.is_multiple_of(2) { None } else { Some(1.0 - x) },
         surface_f1: Some(x / 2.0),
         chamfer_m: if run.is_multiple_of(3) { None } else { Some(x) },
         n_highlights: run as usize,

@@ -310,3 +310,59 @@ fn a_runs_csv_in_the_old_format_resumes_and_is_upgraded() {
     let row1: Vec<&str> = upgraded.lines().nth(1).unwrap().split(',').collect();
     assert_eq!((row1[8], row1[9]), ("", ""));
 }
+
+/// A score outside [0, 1] or NaN in a hand-edited runs.csv is refused with
+/// its line, on resume as on merge, instead of flowing into the summary.
+#[test]
+fn scores_out_of_range_in_runs_csv_are_refused() {
+    let plan = SweepDef::from_toml_str(SWEEP).unwrap().plan(|_| Ok(())).unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path().join("a");
+    run_sweep(&plan, &d, Shard::ALL, 1, fake, |_, _| {}).unwrap();
+    let runs = d.join("runs.csv");
+    let text = std::fs::read_to_string(&runs).unwrap();
+    for (col, value) in [(6, "NaN"), (6, "7.5"), (7, "-0.1"), (8, "inf"), (12, "-1")] {
+        let edited: Vec<String> = text
+            .lines()
+            .enumerate()
+            .map(|(i, l)| {
+                if i != 1 {
+                    return l.to_string();
+                }
+                let mut f: Vec<&str> = l.split(',').collect();
+                f[col] = value;
+                f.join(",")
+            })
+            .collect();
+        std::fs::write(&runs, edited.join("\n") + "\n").unwrap();
+        let e = run_sweep(&plan, &d, Shard::ALL, 1, fake, |_, _| {}).unwrap_err().to_string();
+        assert!(e.contains("line 2: bad"), "{col}={value}: {e}");
+        let out = tmp.path().join(format!("m{col}{value}"));
+        let e = merge(&[d.as_path()], &out, |d| d.plan(|_| Ok(()))).unwrap_err().to_string();
+        assert!(e.contains("line 2: bad"), "merge {col}={value}: {e}");
+    }
+}
+
+/// A new sweep directory holding a user's summary.md (or summary.csv,
+/// summary.png) is refused before anything is written: the sweep would
+/// overwrite it at the end.
+#[test]
+fn a_users_summary_files_are_not_overwritten() {
+    let plan = SweepDef::from_toml_str(SWEEP).unwrap().plan(|_| Ok(())).unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    for name in ["summary.md", "summary.csv", "summary.png"] {
+        let d = tmp.path().join(name);
+        std::fs::create_dir(&d).unwrap();
+        std::fs::write(d.join(name), "my notes").unwrap();
+        let e = run_sweep(&plan, &d, Shard::ALL, 1, fake, |_, _| {}).unwrap_err().to_string();
+        assert!(e.contains(name) && e.contains("not ours"), "{e}");
+        assert_eq!(std::fs::read_to_string(d.join(name)).unwrap(), "my notes");
+        assert_eq!(std::fs::read_dir(&d).unwrap().count(), 1, "nothing written beside it");
+    }
+    // An output that is a file: one clear error, the file kept.
+    let f = tmp.path().join("sweep.toml");
+    std::fs::write(&f, "mine").unwrap();
+    let e = run_sweep(&plan, &f, Shard::ALL, 1, fake, |_, _| {}).unwrap_err().to_string();
+    assert!(e.contains("is a file"), "{e}");
+    assert_eq!(std::fs::read_to_string(&f).unwrap(), "mine");
+}

@@ -3,7 +3,9 @@
 //! rejection and a greedy one-surface-per-echo assignment.
 
 use super::tangent::{far_offset, far_tangent};
-use super::{Ctx, Surface, SurfaceKind};
+use super::{Ctx, EvidenceParams, Surface, SurfaceKind};
+use crate::error::CoreError;
+use crate::grid::{DEFAULT_MEMORY_CAP_BYTES, GridSpec};
 use crate::geometry::Point;
 use std::f64::consts::TAU;
 
@@ -761,12 +763,14 @@ struct Geom {
 
 impl Geom {
     fn new(ctx: &Ctx) -> Self {
-        let spec = &ctx.spec;
+        Self::of(&ctx.spec, ctx.params.angle_bins, origin_of(ctx))
+    }
+    fn of(spec: &GridSpec, angle_bins: u32, origin: Point) -> Self {
         let r_max = 0.5 * (spec.x_max_m() - spec.x_min_m).hypot(spec.y_max_m() - spec.y_min_m) + spec.cell_m;
         let rho_bin = spec.cell_m;
-        let k_bins = ctx.params.angle_bins as usize;
+        let k_bins = angle_bins as usize;
         Geom {
-            origin: origin_of(ctx),
+            origin,
             r_max,
             rho_bin,
             n_rho: ((2.0 * r_max / rho_bin).ceil() as usize + 1).min(1 << 20),
@@ -778,6 +782,25 @@ impl Geom {
     fn line_of(&self, t: usize, b: usize) -> (f64, f64) {
         (t as f64 * self.bin, b as f64 * self.rho_bin - self.r_max)
     }
+}
+
+/// Refuses a grid and angle resolution whose line vote (an f32 accumulator of
+/// `angle_bins` × offset bins) would need more than the mapper's memory cap,
+/// before anything is allocated: an error naming the field, not an abort.
+pub(crate) fn check_vote_memory(spec: GridSpec, params: &EvidenceParams) -> Result<(), CoreError> {
+    let g = Geom::of(&spec, params.angle_bins, Point::new(0.0, 0.0));
+    let bytes = (g.k_bins as u128) * (g.n_rho as u128) * 4;
+    if bytes > DEFAULT_MEMORY_CAP_BYTES {
+        return Err(CoreError::InvalidParam {
+            field: "evidence.angle_bins",
+            reason: format!(
+                "the line vote over this grid ({} angle bins x {} offset bins) needs {bytes} bytes, more than the \
+                 cap of {DEFAULT_MEMORY_CAP_BYTES} bytes; use fewer angle bins, smaller bounds or a larger cell",
+                g.k_bins, g.n_rho
+            ),
+        });
+    }
+    Ok(())
 }
 
 /// The Hough vote and its peaks, strongest first (ties in cell order), at

@@ -108,6 +108,9 @@ impl Default for EvidenceParams {
     }
 }
 
+/// Largest log-odds one deposit may add or carve (see [`EvidenceParams::validate`]).
+const MAX_LOGODDS: f64 = 100.0;
+
 impl EvidenceParams {
     /// Checks every field's range; the error names the field.
     pub fn validate(&self) -> Result<(), CoreError> {
@@ -121,14 +124,16 @@ impl EvidenceParams {
         if !(self.band_sigmas.is_finite() && self.band_sigmas >= 0.5 && self.band_sigmas <= 10.0) {
             return bad("evidence.band_sigmas", "must be in [0.5, 10]");
         }
-        if !(self.free_logodds.is_finite() && self.free_logodds < 0.0) {
-            return bad("evidence.free_logodds", "must be finite and < 0");
+        // Log-odds of ±100 already mean probabilities within e^-100 of 0 or 1;
+        // the bound keeps sums of millions of deposits finite in map.npy's f32.
+        if !(self.free_logodds.is_finite() && self.free_logodds < 0.0 && self.free_logodds >= -MAX_LOGODDS) {
+            return bad("evidence.free_logodds", "must be in [-100, 0)");
         }
-        if !pos(self.hit_logodds) {
-            return bad("evidence.hit_logodds", "must be finite and > 0");
+        if !(pos(self.hit_logodds) && self.hit_logodds <= MAX_LOGODDS) {
+            return bad("evidence.hit_logodds", "must be in (0, 100]");
         }
-        if !(self.ring_logodds.is_finite() && self.ring_logodds >= 0.0) {
-            return bad("evidence.ring_logodds", "must be finite and >= 0");
+        if !(self.ring_logodds.is_finite() && (0.0..=MAX_LOGODDS).contains(&self.ring_logodds)) {
+            return bad("evidence.ring_logodds", "must be in [0, 100]");
         }
         if !(8..=7200).contains(&self.angle_bins) {
             return bad("evidence.angle_bins", "must be in [8, 7200]");
@@ -372,7 +377,16 @@ pub fn map_evidence(echoes: &[Echo], spec: GridSpec, params: &EvidenceParams) ->
     if !(spec.x_min_m.is_finite() && spec.y_min_m.is_finite()) {
         return Err(CoreError::InvalidGrid("grid origin must be finite".into()));
     }
-    let mut ctx = prepare(echoes, spec, params)?;
+    lines::check_vote_memory(spec, params)?;
+    // Weight 0 marks an echo kept in the file but out of the map (e.g. a
+    // floor or ceiling reflection, docs/rooms.md), as it is for Algorithm 1,
+    // where it adds nothing: it is neither evidence nor free space here.
+    let echoes: std::borrow::Cow<'_, [Echo]> = if echoes.iter().any(|e| e.weight == 0.0) {
+        echoes.iter().filter(|e| e.weight != 0.0).cloned().collect::<Vec<_>>().into()
+    } else {
+        echoes.into()
+    };
+    let mut ctx = prepare(&echoes, spec, params)?;
     let mut cells_updated = carve_free(&mut ctx)?;
 
     // Walls, then compact reflectors from the echoes no wall explains.
@@ -565,6 +579,10 @@ mod tests {
             EvidenceParams { angle_bins: 2, ..Default::default() },
             EvidenceParams { ghost_fraction: f64::NAN, ..Default::default() },
             EvidenceParams { point_radius_m: 0.0, ..Default::default() },
+            // Deposits beyond ±100 log-odds would overflow map.npy's f32 cells.
+            EvidenceParams { hit_logodds: 1e308, ..Default::default() },
+            EvidenceParams { ring_logodds: 1e39, ..Default::default() },
+            EvidenceParams { free_logodds: -1e308, ..Default::default() },
         ];
         for p in bad {
             assert!(p.validate().is_err(), "{p:?}");
@@ -586,6 +604,44 @@ mod tests {
         let mut bent = pts.clone();
         bent.push(Point::new(0.0, 3.0));
         assert!(max_line_deviation(&bent) > 0.5);
+    }
+
+    /// A line vote too large for the memory cap is an error naming the
+    /// field before anything is allocated (it aborted on a 30 GB allocation).
+    #[test]
+    fn oversized_vote_is_refused_before_allocating() {
+        let spec = GridSpec::from_bounds([-1e5, -0.5, 1e5, 0.5], 0.1, u128::MAX).expect("grid");
+        let params = EvidenceParams { angle_bins: 7200, ..Default::default() };
+        let e = Echo::new(Point::new(0.0, 0.0), Point::new(1.0, 0.0), 0.4, 1.0, 0.0, 0).expect("echo");
+        match map_evidence(&[e], spec, &params) {
+            Err(CoreError::InvalidParam { field, .. }) => assert_eq!(field, "evidence.angle_bins"),
+            other => panic!("expected the angle_bins error, got {:?}", other.map(|m| m.surfaces.len())),
+        }
+    }
+
+    /// Echoes of weight 0 (floor and ceiling reflections, kept in the file
+    /// but out of the map) change nothing, as for Algorithm 1.
+    #[test]
+    fn weight_zero_echoes_are_left_out() {
+        let listeners = (0..40).map(|k| Point::new(-2.0 + 0.1 * f64::from(k), 3.0));
+        let wall_y = -2.0;
+        let mut echoes = Vec::new();
+        for (k, l) in listeners.enumerate() {
+            // Image source of the source (0, 0) across the wall y = -2.
+            let image = Point::new(0.0, 2.0 * wall_y);
+            let dd = image.dist(l) - Point::new(0.0, 0.0).dist(l);
+            let t = k as f64 * 0.1;
+            echoes.push(Echo::new(Point::new(0.0, 0.0), l, dd, 1.0, t, 0).expect("echo"));
+            echoes.push(Echo::new(Point::new(0.0, 0.0), l, 0.5 + 0.01 * k as f64, 0.0, t, 0).expect("echo"));
+        }
+        let spec = GridSpec::from_bounds([-6.0, -5.0, 6.0, 6.0], 0.1, u128::MAX).expect("grid");
+        let params = EvidenceParams::default();
+        let with = map_evidence(&echoes, spec, &params).expect("map");
+        let heard: Vec<Echo> = echoes.iter().filter(|e| e.weight > 0.0).cloned().collect();
+        let without = map_evidence(&heard, spec, &params).expect("map");
+        assert!(!without.surfaces.is_empty(), "the wall is found");
+        assert_eq!(with.surfaces, without.surfaces);
+        assert!(with.grid.data.iter().zip(&without.grid.data).all(|(a, b)| a.to_bits() == b.to_bits()));
     }
 
     #[test]
