@@ -36,6 +36,10 @@ use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
 use serde::{Deserialize, Serialize};
 
+/// Most samples one listener's recording may have (a WAV's 32-bit data size
+/// holds at most ~2.1·10⁹ 16-bit samples).
+const MAX_SAMPLES: usize = 2_000_000_000;
+
 /// The `[synth]` table of a scene file. It lives beside the core scene
 /// schema (which rejects unknown keys) and is split off before the scene is
 /// parsed, so the core schema does not change.
@@ -171,10 +175,13 @@ impl SynthConfig {
                 format!("must be finite and at least {} s, got {}", Num(MIN_POSE_PERIOD_S), Num(self.pose_period_s)),
             );
         }
+        // Beyond these the recording is all noise (below −100 dB the chirp is
+        // 10⁵ times below it) or, past ~−3000 dB, the noise's scale overflows
+        // and the file is silent; above 300 dB the noise is below f32's resolution.
         if let Some(s) = self.snr_db
-            && !s.is_finite()
+            && !(s.is_finite() && (-100.0..=300.0).contains(&s))
         {
-            return bad("synth.snr_db", "must be finite".into());
+            return bad("synth.snr_db", format!("must be in [-100, 300] dB, got {}", Num(s)));
         }
         self.format().map(|_| ())
     }
@@ -407,8 +414,16 @@ impl<'a> Renderer<'a> {
         let period_s = t_chirp + cfg.gap_s;
         let total_s = cfg.start_s + cfg.chirps as f64 * period_s - cfg.gap_s + cfg.tail_s;
         let n = (total_s * fs).ceil() as usize;
-        if n > 2_000_000_000 {
-            return Err(AudioError::InvalidParam { field: "synth", reason: format!("{} s is too long", Num(total_s)) });
+        if n > MAX_SAMPLES {
+            return Err(AudioError::InvalidParam {
+                field: "synth.chirps",
+                reason: format!(
+                    "with gap_s, start_s and tail_s they make {} s of audio ({n} samples at {} Hz), more than the \
+                     limit of {MAX_SAMPLES} samples per listener",
+                    Num(total_s),
+                    Num(fs)
+                ),
+            });
         }
         Ok(Self {
             scene,
@@ -717,6 +732,21 @@ mod tests {
         assert!(e.contains("sideways") || e.contains("pattern"), "{e}");
         assert_eq!(pattern_cycle(&scene.chirp, Some(ChirpPattern::Up))[0].f_start, 200.0);
         assert_eq!(pattern_cycle(&scene.chirp, None)[0], scene.chirp);
+    }
+
+    /// An SNR so low that the noise's scale overflows made a silent WAV (exit
+    /// 0); a recording too long for a WAV named no field.
+    #[test]
+    fn extreme_snr_and_too_many_samples_name_their_field() {
+        let base = "[[listeners]]\nstart = [1.5, 0.5]\nspeed = 0.0\n[synth]\n";
+        for snr in ["-3100.0", "-100.1", "300.5", "-1e300"] {
+            let e = parse_scene_with_synth(&format!("{base}chirps = 2\nsnr_db = {snr}\n")).unwrap_err().to_string();
+            assert!(e.contains("synth.snr_db") && e.contains("[-100, 300]"), "{snr}: {e}");
+        }
+        assert!(parse_scene_with_synth(&format!("{base}chirps = 2\nsnr_db = -100.0\n")).is_ok());
+        let (scene, cfg) = parse_scene_with_synth(&format!("{base}chirps = 1000000\n")).unwrap();
+        let e = SynthStream::new(&scene, &cfg).map(|_| ()).unwrap_err().to_string();
+        assert!(e.contains("synth.chirps") && e.contains("2000000000 samples"), "{e}");
     }
 
     #[test]

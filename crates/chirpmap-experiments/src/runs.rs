@@ -302,7 +302,9 @@ impl RunsFile {
                     if p.exists() {
                         return Err(ExperimentError::file(
                             &p,
-                            format!("exists but this directory holds no {SWEEP_FILE}: not ours to overwrite; use another --out directory"),
+                            format!(
+                                "exists but this directory holds no {SWEEP_FILE}: not ours to overwrite; use another --out directory"
+                            ),
                         ));
                     }
                 }

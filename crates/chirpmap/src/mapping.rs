@@ -1,6 +1,7 @@
 //! Echoes → map → highlights → scores (paper Algorithm 1 and §III.A).
 
 use crate::error::{Error, Result};
+use chirpmap_core::error::Num;
 use chirpmap_core::grid::DEFAULT_MEMORY_CAP_BYTES;
 use chirpmap_core::metrics::{MetricParams, SurfaceMetrics, surface_metrics};
 use chirpmap_core::{
@@ -113,6 +114,15 @@ pub fn evaluate(obstacles: &[Obstacle], map: &MapResult) -> Evaluation {
 /// Bounds covering every ellipse and every `extra` box `(lo, hi)`, snapped
 /// outward to whole cells plus one; `None` when nothing finite is covered.
 pub fn covering_bounds(echoes: &[Echo], extra: &[(Point, Point)], cell_m: f64) -> Option<[f64; 4]> {
+    let b = extent(echoes, extra)?;
+    let snap_lo = |v: f64| (v / cell_m).floor() * cell_m - cell_m;
+    let snap_hi = |v: f64| (v / cell_m).ceil() * cell_m + cell_m;
+    Some([snap_lo(b[0]), snap_lo(b[1]), snap_hi(b[2]), snap_hi(b[3])])
+}
+
+/// The box `[x_min, y_min, x_max, y_max]` of every ellipse and `extra` box;
+/// `None` when nothing finite is covered.
+fn extent(echoes: &[Echo], extra: &[(Point, Point)]) -> Option<[f64; 4]> {
     let mut b = [f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY];
     let mut grow = |lo: Point, hi: Point| {
         b = [b[0].min(lo.x), b[1].min(lo.y), b[2].max(hi.x), b[3].max(hi.y)];
@@ -126,12 +136,7 @@ pub fn covering_bounds(echoes: &[Echo], extra: &[(Point, Point)], cell_m: f64) -
     for &(lo, hi) in extra {
         grow(lo, hi);
     }
-    if !b.iter().all(|v| v.is_finite()) {
-        return None;
-    }
-    let snap_lo = |v: f64| (v / cell_m).floor() * cell_m - cell_m;
-    let snap_hi = |v: f64| (v / cell_m).ceil() * cell_m + cell_m;
-    Some([snap_lo(b[0]), snap_lo(b[1]), snap_hi(b[2]), snap_hi(b[3])])
+    b.iter().all(|v| v.is_finite()).then_some(b)
 }
 
 /// Maps `echoes` with Algorithm 1. `extra` boxes (e.g. the obstacles to be
@@ -147,6 +152,25 @@ pub fn map_echoes(echoes: &[Echo], extra: &[(Point, Point)], opts: &MapOptions) 
         None => covering_bounds(echoes, extra, params.cell)
             .ok_or_else(|| Error::Invalid("cannot derive bounds from the echoes".into()))?,
     };
+    // A cell larger than half of what the echoes (or --bounds) cover makes a
+    // map of a few cells that shows nothing (`--cell 1e300` gave 4 × 4 cells
+    // at ±2e300 m); `simulate` refuses such cells for its world too.
+    let covered = match opts.bounds {
+        Some(b) => Some(b),
+        None => extent(echoes, extra),
+    };
+    if let Some(c) = covered {
+        let side_m = (c[2] - c[0]).min(c[3] - c[1]);
+        if params.cell > side_m / 2.0 {
+            return Err(Error::Invalid(format!(
+                "--cell {} m leaves fewer than 2 cells across the {} m the map covers: use a cell of at most {} m \
+                 (paper: 0.1)",
+                Num(params.cell),
+                Num(side_m),
+                Num(side_m / 2.0)
+            )));
+        }
+    }
     let spec = GridSpec::from_bounds(bounds, params.cell, opts.memory_cap_bytes)?;
     map_on_grid(echoes, spec, params)
 }

@@ -5,8 +5,8 @@
 use super::tangent::{far_offset, far_tangent};
 use super::{Ctx, EvidenceParams, Surface, SurfaceKind};
 use crate::error::CoreError;
-use crate::grid::{DEFAULT_MEMORY_CAP_BYTES, GridSpec};
 use crate::geometry::Point;
+use crate::grid::{DEFAULT_MEMORY_CAP_BYTES, GridSpec};
 use std::f64::consts::TAU;
 
 /// An accepted wall: the surface and, per explained echo, its tangency point.
