@@ -367,8 +367,9 @@ fn represent_surfaces(grid: &Grid, surfaces: &[Surface], radius_m: f64, highligh
 
 /// Maps `echoes` on the grid `spec` (issue 9): free space, surfaces (lines
 /// and compact reflectors, ghosts rejected, mirror ambiguity flagged), the
-/// final log-odds map and its highlights. Errors on invalid parameters,
-/// echoes or an empty grid; never panics on input.
+/// final log-odds map and its highlights. Echoes of weight 0 are left out.
+/// Errors on invalid parameters, echoes, an empty grid or a line vote
+/// beyond the memory cap; never panics on input.
 pub fn map_evidence(echoes: &[Echo], spec: GridSpec, params: &EvidenceParams) -> Result<EvidenceMap, CoreError> {
     params.validate()?;
     if spec.nx == 0 || spec.ny == 0 || !(spec.cell_m.is_finite() && spec.cell_m > 0.0) {
