@@ -44,6 +44,7 @@ def test_bad_echoes_raise_value_error(rows, message):
         ({"bounds": (1, 0, 0, 1)}, "xmin < xmax"),
         ({"bounds": (0, 0, 1)}, "bounds: expected (x_min, y_min, x_max, y_max)"),
         ({"bounds": (-1e5, -1e5, 1e5, 1e5), "cell": 0.01}, "more than the cap of"),
+        ({"cell": 1e300}, "leaves fewer than 2 cells"),
         ({"mapper": "evidence", "evidence": {"angle_bins": 2}}, "evidence.angle_bins"),
         ({"mapper": "evidence", "evidence": {"no_such_key": 2}}, "no_such_key"),
         ({"sigma": -1.0, "mapper": "evidence"}, "`sigma_m` = -1 must be > 0"),

@@ -152,6 +152,8 @@ pub fn map_echoes(echoes: &[Echo], extra: &[(Point, Point)], opts: &MapOptions) 
         None => covering_bounds(echoes, extra, params.cell)
             .ok_or_else(|| Error::Invalid("cannot derive bounds from the echoes".into()))?,
     };
+    // Bounds checked first (an inverted box is its own error).
+    let spec = GridSpec::from_bounds(bounds, params.cell, opts.memory_cap_bytes)?;
     // A cell larger than half of what the echoes (or --bounds) cover makes a
     // map of a few cells that shows nothing (`--cell 1e300` gave 4 × 4 cells
     // at ±2e300 m); `simulate` refuses such cells for its world too.
@@ -163,7 +165,7 @@ pub fn map_echoes(echoes: &[Echo], extra: &[(Point, Point)], opts: &MapOptions) 
         let side_m = (c[2] - c[0]).min(c[3] - c[1]);
         if params.cell > side_m / 2.0 {
             return Err(Error::Invalid(format!(
-                "--cell {} m leaves fewer than 2 cells across the {} m the map covers: use a cell of at most {} m \
+                "cell {} m leaves fewer than 2 cells across the {} m the map covers: use a cell of at most {} m \
                  (paper: 0.1)",
                 Num(params.cell),
                 Num(side_m),
@@ -171,7 +173,6 @@ pub fn map_echoes(echoes: &[Echo], extra: &[(Point, Point)], opts: &MapOptions) 
             )));
         }
     }
-    let spec = GridSpec::from_bounds(bounds, params.cell, opts.memory_cap_bytes)?;
     map_on_grid(echoes, spec, params)
 }
 
