@@ -114,10 +114,14 @@ pub fn evaluate(obstacles: &[Obstacle], map: &MapResult) -> Evaluation {
 /// Bounds covering every ellipse and every `extra` box `(lo, hi)`, snapped
 /// outward to whole cells plus one; `None` when nothing finite is covered.
 pub fn covering_bounds(echoes: &[Echo], extra: &[(Point, Point)], cell_m: f64) -> Option<[f64; 4]> {
-    let b = extent(echoes, extra)?;
+    extent(echoes, extra).map(|b| snapped(b, cell_m))
+}
+
+/// `b` snapped outward to whole cells plus one.
+fn snapped(b: [f64; 4], cell_m: f64) -> [f64; 4] {
     let snap_lo = |v: f64| (v / cell_m).floor() * cell_m - cell_m;
     let snap_hi = |v: f64| (v / cell_m).ceil() * cell_m + cell_m;
-    Some([snap_lo(b[0]), snap_lo(b[1]), snap_hi(b[2]), snap_hi(b[3])])
+    [snap_lo(b[0]), snap_lo(b[1]), snap_hi(b[2]), snap_hi(b[3])]
 }
 
 /// The box `[x_min, y_min, x_max, y_max]` of every ellipse and `extra` box;
@@ -147,31 +151,29 @@ pub fn map_echoes(echoes: &[Echo], extra: &[(Point, Point)], opts: &MapOptions) 
     if echoes.is_empty() {
         return Err(Error::Invalid("no echoes to map".into()));
     }
-    let bounds = match opts.bounds {
-        Some(b) => b,
-        None => covering_bounds(echoes, extra, params.cell)
-            .ok_or_else(|| Error::Invalid("cannot derive bounds from the echoes".into()))?,
+    // What the map covers: --bounds, or the echoes' ellipses (then snapped to cells).
+    let (covered, bounds) = match opts.bounds {
+        Some(b) => (b, b),
+        None => {
+            let e =
+                extent(echoes, extra).ok_or_else(|| Error::Invalid("cannot derive bounds from the echoes".into()))?;
+            (e, snapped(e, params.cell))
+        }
     };
     // Bounds checked first (an inverted box is its own error).
     let spec = GridSpec::from_bounds(bounds, params.cell, opts.memory_cap_bytes)?;
-    // A cell larger than half of what the echoes (or --bounds) cover makes a
-    // map of a few cells that shows nothing (`--cell 1e300` gave 4 × 4 cells
-    // at ±2e300 m); `simulate` refuses such cells for its world too.
-    let covered = match opts.bounds {
-        Some(b) => Some(b),
-        None => extent(echoes, extra),
-    };
-    if let Some(c) = covered {
-        let side_m = (c[2] - c[0]).min(c[3] - c[1]);
-        if params.cell > side_m / 2.0 {
-            return Err(Error::Invalid(format!(
-                "cell {} m leaves fewer than 2 cells across the {} m the map covers: use a cell of at most {} m \
-                 (paper: 0.1)",
-                Num(params.cell),
-                Num(side_m),
-                Num(side_m / 2.0)
-            )));
-        }
+    // A cell larger than half of what is covered makes a map of a few cells
+    // that shows nothing (`--cell 1e300` gave 4 × 4 cells at ±2e300 m);
+    // `simulate` refuses such cells for its world too.
+    let side_m = (covered[2] - covered[0]).min(covered[3] - covered[1]);
+    if params.cell > side_m / 2.0 {
+        return Err(Error::Invalid(format!(
+            "cell {} m leaves fewer than 2 cells across the {} m the map covers: use a cell of at most {} m \
+             (paper: 0.1)",
+            Num(params.cell),
+            Num(side_m),
+            Num(side_m / 2.0)
+        )));
     }
     map_on_grid(echoes, spec, params)
 }
