@@ -97,6 +97,21 @@ pub enum AudioError {
         /// Largest |sample| found.
         peak: f32,
     },
+    /// A float sample that is NaN or infinite: no recorder writes one, so
+    /// the file is damaged (or was written from invalid values). Refused
+    /// rather than read as silence or as clipping, which would hide it.
+    #[error(
+        "float sample {frame} of channel {channel} is {what}: the file is damaged or was written from invalid \
+         values (a WAV holds finite samples)"
+    )]
+    NonFinite {
+        /// Frame (sample index per channel, from 0) of the first such sample.
+        frame: usize,
+        /// Its channel (from 0).
+        channel: usize,
+        /// `NaN`, `inf` or `-inf`.
+        what: &'static str,
+    },
     /// A parameter is out of range; `field` names it, `reason` says why.
     #[error("invalid parameter {field}: {reason}")]
     InvalidParam {

@@ -199,7 +199,11 @@ pub fn read_wav_bytes(bytes: &[u8]) -> Result<Recording, AudioError> {
     )?;
     let mut channels: Vec<Vec<f32>> = (0..n_ch).map(|_| Vec::with_capacity(frames)).collect();
     let mut outs: Vec<(usize, &mut Vec<f32>)> = channels.iter_mut().enumerate().collect();
-    let (clipped, float_peak) = decode_frames(format, &data[..frames * frame_bytes], n_ch, &mut outs);
+    let Decoded { clipped, float_peak, non_finite } =
+        decode_frames(format, &data[..frames * frame_bytes], n_ch, &mut outs);
+    if let Some((at, what)) = non_finite {
+        return Err(AudioError::NonFinite { frame: at / n_ch, channel: at % n_ch, what });
+    }
     if f64::from(float_peak) > crate::error::MAX_FLOAT_SAMPLE {
         return Err(AudioError::BadScale { peak: float_peak });
     }
@@ -556,23 +560,39 @@ impl WavStream {
         self.frames_read += n;
         out.reserve(n);
         // The same decoding as read_wav_bytes.
-        let (clipped, peak) = decode_frames(self.format, &self.raw, self.n_channels, &mut [(self.channel, out)]);
+        let first = self.frames_read - n;
+        let Decoded { clipped, float_peak, non_finite } =
+            decode_frames(self.format, &self.raw, self.n_channels, &mut [(self.channel, out)]);
+        if let Some((at, what)) = non_finite {
+            let channel = at % self.n_channels;
+            return Err(AudioError::NonFinite { frame: first + at / self.n_channels, channel, what });
+        }
         self.clipped += clipped;
-        self.float_peak = self.float_peak.max(peak);
+        self.float_peak = self.float_peak.max(float_peak);
         Ok(n)
     }
 }
 
+/// What [`decode_frames`] found besides the samples.
+struct Decoded {
+    /// Samples at full scale, over every channel.
+    clipped: usize,
+    /// Largest |value| of the float samples (0 for integer formats), which
+    /// tells a float file not scaled to ±1.
+    float_peak: f32,
+    /// The first non-finite float sample: its index in the block (frame ×
+    /// channels + channel) and `NaN`, `inf` or `-inf`. The caller refuses
+    /// the file, so the values decoded for it do not matter.
+    non_finite: Option<(usize, &'static str)>,
+}
+
 /// Decodes whole frames of `n_ch` samples in `format`: for each `(c, out)`
-/// of `outs`, appends channel `c`'s samples to `out` (full scale ±1,
-/// non-finite floats as 0). Returns how many samples of every channel are
-/// clipped (at full scale, or non-finite) and the largest |value| of the
-/// finite float samples (0 for integer formats), which tells a float file
-/// not scaled to ±1. One loop per encoding (the match is outside the loops),
-/// and values and counts in loops of their own: together, the count's update
-/// through a reference kept the loop scalar (8 % of `range`'s CPU on a
-/// 16-bit file); apart, each vectorises.
-fn decode_frames(format: SampleFormat, raw: &[u8], n_ch: usize, outs: &mut [(usize, &mut Vec<f32>)]) -> (usize, f32) {
+/// of `outs`, appends channel `c`'s samples to `out` (full scale ±1). One
+/// loop per encoding (the match is outside the loops), and values and counts
+/// in loops of their own: together, the count's update through a reference
+/// kept the loop scalar (8 % of `range`'s CPU on a 16-bit file); apart, each
+/// vectorises.
+fn decode_frames(format: SampleFormat, raw: &[u8], n_ch: usize, outs: &mut [(usize, &mut Vec<f32>)]) -> Decoded {
     fn each<const W: usize>(
         raw: &[u8],
         n_ch: usize,
@@ -593,54 +613,52 @@ fn decode_frames(format: SampleFormat, raw: &[u8], n_ch: usize, outs: &mut [(usi
         raw.chunks_exact(W).filter(|s| clipped(sample_bytes(s))).count()
     }
     let int24 = |s: [u8; 3]| i32::from_le_bytes([0, s[0], s[1], s[2]]) >> 8;
+    let ints = |clipped| Decoded { clipped, float_peak: 0.0, non_finite: None };
     match format {
-        SampleFormat::Int(16) => (
-            each::<2>(
-                raw,
-                n_ch,
-                outs,
-                |s| f32::from(i16::from_le_bytes(s)) / 32_768.0,
-                |s| matches!(i16::from_le_bytes(s), i16::MAX | i16::MIN),
-            ),
-            0.0,
-        ),
-        SampleFormat::Int(24) => (
-            each::<3>(
-                raw,
-                n_ch,
-                outs,
-                |s| int24(s) as f32 / 8_388_608.0,
-                |s| matches!(int24(s), 8_388_607 | -8_388_608),
-            ),
-            0.0,
-        ),
-        SampleFormat::Int(_) => (
-            each::<4>(
-                raw,
-                n_ch,
-                outs,
-                |s| (f64::from(i32::from_le_bytes(s)) / 2_147_483_648.0) as f32,
-                |s| matches!(i32::from_le_bytes(s), i32::MAX | i32::MIN),
-            ),
-            0.0,
-        ),
+        SampleFormat::Int(16) => ints(each::<2>(
+            raw,
+            n_ch,
+            outs,
+            |s| f32::from(i16::from_le_bytes(s)) / 32_768.0,
+            |s| matches!(i16::from_le_bytes(s), i16::MAX | i16::MIN),
+        )),
+        SampleFormat::Int(24) => ints(each::<3>(
+            raw,
+            n_ch,
+            outs,
+            |s| int24(s) as f32 / 8_388_608.0,
+            |s| matches!(int24(s), 8_388_607 | -8_388_608),
+        )),
+        SampleFormat::Int(_) => ints(each::<4>(
+            raw,
+            n_ch,
+            outs,
+            |s| (f64::from(i32::from_le_bytes(s)) / 2_147_483_648.0) as f32,
+            |s| matches!(i32::from_le_bytes(s), i32::MAX | i32::MIN),
+        )),
         SampleFormat::Float32 => {
+            let float = |s: &[u8]| f32::from_le_bytes(sample_bytes(s));
+            // |NaN| is NaN, which `max` skips: count it as infinite, so one
+            // pass finds the peak and whether any sample is not finite.
             let peak = raw
                 .chunks_exact(4)
-                .map(|s| f32::from_le_bytes(sample_bytes(s)))
-                .filter(|f| f.is_finite())
-                .fold(0.0f32, |p, f| p.max(f.abs()));
-            let clipped = each::<4>(
-                raw,
-                n_ch,
-                outs,
-                |s| Some(f32::from_le_bytes(s)).filter(|f| f.is_finite()).unwrap_or(0.0),
-                |s| {
-                    let f = f32::from_le_bytes(s);
-                    !f.is_finite() || f.abs() >= 1.0
-                },
-            );
-            (clipped, peak)
+                .map(|s| float(s).abs())
+                .fold(0.0f32, |p, a| p.max(if a.is_nan() { f32::INFINITY } else { a }));
+            if peak == f32::INFINITY {
+                let found = raw.chunks_exact(4).map(float).enumerate().find(|(_, f)| !f.is_finite());
+                if let Some((at, f)) = found {
+                    let what = if f.is_nan() {
+                        "NaN"
+                    } else if f > 0.0 {
+                        "inf"
+                    } else {
+                        "-inf"
+                    };
+                    return Decoded { clipped: 0, float_peak: peak, non_finite: Some((at, what)) };
+                }
+            }
+            let clipped = each::<4>(raw, n_ch, outs, f32::from_le_bytes, |s| f32::from_le_bytes(s).abs() >= 1.0);
+            Decoded { clipped, float_peak: peak, non_finite: None }
         }
     }
 }

@@ -85,6 +85,8 @@ proptest! {
         block in 1usize..300,
         extra in proptest::collection::vec(proptest::collection::vec(any::<u8>(), 0..9), 0..3),
         seed in any::<u64>(),
+        bad_at in any::<proptest::sample::Index>(),
+        bad in prop_oneof![Just(f32::NAN), Just(f32::INFINITY), Just(f32::NEG_INFINITY)],
     ) {
         let (tag, bits) = [(1u16, 16u16), (1, 24), (1, 32), (3, 32)][fmt];
         let width = usize::from(bits / 8);
@@ -92,17 +94,28 @@ proptest! {
         let mut data: Vec<u8> = (0..frames * usize::from(channels) * width)
             .map(|_| { r ^= r << 13; r ^= r >> 7; r ^= r << 17; (r >> 24) as u8 })
             .collect();
+        let ch = usize::from(ch_pick % channels);
         if tag == 3 {
-            // Floats within ±1.2 (some clipped), and one non-finite.
+            // Floats within ±1.2 (some clipped).
             for (i, s) in data.chunks_exact_mut(4).enumerate() {
                 let v = ((i * 7919) % 2400) as f32 / 1000.0 - 1.2;
                 s.copy_from_slice(&v.to_le_bytes());
             }
-            data[0..4].copy_from_slice(&f32::NAN.to_le_bytes());
+            // One non-finite sample, in any channel: both readers refuse the
+            // file with the same message, naming its frame and channel.
+            let at = bad_at.index(data.len() / 4);
+            let mut broken = data.clone();
+            broken[4 * at..4 * at + 4].copy_from_slice(&bad.to_le_bytes());
+            let bytes = wav_bytes(tag, channels, 48_000, bits, &extra, &broken);
+            let p = file(&format!("bad{fmt}-{channels}-{frames}.wav"), &bytes);
+            let whole = read_wav_bytes(&bytes).unwrap_err().to_string();
+            let streamed = stream_all(&p, ch, block).unwrap_err().to_string();
+            prop_assert_eq!(&whole, &streamed);
+            let named = format!("float sample {} of channel {} is ", at / usize::from(channels), at % usize::from(channels));
+            prop_assert!(whole.starts_with(&named), "{}", whole);
         }
         let bytes = wav_bytes(tag, channels, 48_000, bits, &extra, &data);
         let p = file(&format!("p{fmt}-{channels}-{frames}.wav"), &bytes);
-        let ch = usize::from(ch_pick % channels);
         let rec = read_wav_bytes(&bytes).unwrap();
         let (x, clipped) = stream_all(&p, ch, block).unwrap();
         prop_assert_eq!(clipped, rec.clipped_samples);

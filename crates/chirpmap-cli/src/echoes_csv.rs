@@ -63,6 +63,49 @@ impl<'a> LineIndex<'a> {
     }
 }
 
+/// Refuses a file that ends inside a quoted field, naming the line where
+/// the quote opened. The `csv` crate reads such a last field up to the end
+/// of the file and reports nothing (RFC 4180 leaves it undefined), so a
+/// file cut short after `"26.5` would be read as a complete row, and an
+/// unclosed quote earlier would swallow every line after it. The scan
+/// follows csv-core's quoting rules: a quote opens a quoted field only as
+/// the field's first byte, `""` inside one is a literal quote, and any other
+/// quote ends it.
+pub fn check_quotes_closed(bytes: &[u8], lines: &LineIndex<'_>, name: &str) -> Result<()> {
+    #[derive(Clone, Copy)]
+    enum At {
+        FieldStart,
+        Unquoted,
+        Quoted,
+        QuoteInQuoted,
+    }
+    let mut at = At::FieldStart;
+    let mut opened = 0;
+    // A UTF-8 byte-order mark, which the csv crate skips, is not a field's first byte.
+    let skip = if bytes.starts_with(b"\xEF\xBB\xBF") { 3 } else { 0 };
+    for (i, &b) in bytes.iter().enumerate().skip(skip) {
+        let ends_field = matches!(b, b',' | b'\n' | b'\r');
+        at = match (at, b) {
+            (At::FieldStart, b'"') => {
+                opened = i;
+                At::Quoted
+            }
+            (At::Quoted, b'"') => At::QuoteInQuoted,
+            (At::Quoted, _) => At::Quoted,
+            (At::QuoteInQuoted, b'"') => At::Quoted,
+            (_, _) if ends_field => At::FieldStart,
+            (_, _) => At::Unquoted,
+        };
+    }
+    if matches!(at, At::Quoted) {
+        bail!(
+            "{name}:{}: a quoted field opened here is never closed (the file ends inside it)",
+            lines.line_of(opened as u64)
+        );
+    }
+    Ok(())
+}
+
 /// Reads and validates every row; errors name the file, line and column.
 pub fn read_echoes(path: &Path) -> Result<Vec<Echo>> {
     let bytes = std::fs::read(path).with_context(|| format!("cannot open echoes file {}", path.display()))?;
@@ -72,6 +115,7 @@ pub fn read_echoes(path: &Path) -> Result<Vec<Echo>> {
 /// Parses an echoes CSV held in memory; `name` is used in messages.
 pub fn parse_echoes(bytes: &[u8], name: &str) -> Result<Vec<Echo>> {
     let lines = LineIndex::new(bytes);
+    check_quotes_closed(bytes, &lines, name)?;
     let mut rdr = csv::ReaderBuilder::new().trim(csv::Trim::All).from_reader(bytes);
     let headers: Vec<String> = rdr
         .byte_headers()
@@ -233,6 +277,29 @@ mod tests {
         assert!(err.len() < 200, "{} chars", err.len());
         let err = format!("{:#}", parse(&format!("{head}\n1e300,0,1,1,2\n")).unwrap_err());
         assert!(err.contains("source (1e300, 0) is beyond"), "{err}");
+    }
+
+    #[test]
+    fn a_quote_never_closed_is_refused_naming_its_line() {
+        let head = "source_x,source_y,listener_x,listener_y,delta_d,note";
+        for eol in ["\n", "\r\n", "\r"] {
+            // Cut short inside the last field: the csv crate alone reads `"26.5` as 26.5.
+            let text = format!("{head}{eol}0,0,1,1,2,a{eol}0,0,1,1,\"26.5");
+            let err = format!("{:#}", parse(&text.replace(",note", "").replace(",a", "")).unwrap_err());
+            assert!(err.starts_with("e.csv:3: a quoted field opened here is never closed"), "{eol:?}: {err}");
+            // Opened early, it would swallow the lines after it.
+            let text = format!("{head}{eol}0,0,1,1,2,\"a{eol}0,0,1,1,2,b{eol}0,0,1,1,2,c{eol}");
+            let err = format!("{:#}", parse(&text).unwrap_err());
+            assert!(err.starts_with("e.csv:2: a quoted field"), "{eol:?}: {err}");
+            // Closed quotes, escaped quotes, commas and line ends inside quotes, and quotes
+            // inside an unquoted field are all fine.
+            let text = format!(
+                "{head}{eol}\"0\",0,1,1,2,\"say \"\"hi\"\", then{eol}go\"{eol}0,0,1,1,2,5\"{eol}0,0,1,1,\"2\",\"x\""
+            );
+            assert_eq!(parse(&text).unwrap().len(), 3, "{eol:?}");
+        }
+        let bom = "\u{feff}\"source_x,source_y,listener_x,listener_y,delta_d\n0,0,1,1,2\n";
+        assert!(format!("{:#}", parse(bom).unwrap_err()).starts_with("e.csv:1: a quoted field"));
     }
 
     #[test]

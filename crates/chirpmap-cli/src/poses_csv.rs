@@ -7,7 +7,7 @@
 //! the same position is kept once, with another position it is refused
 //! (issue 8, item 13). Errors name the file and the line.
 
-use crate::echoes_csv::LineIndex;
+use crate::echoes_csv::{LineIndex, check_quotes_closed};
 use anyhow::{Context, Result, anyhow, bail};
 use chirpmap::{Point, PoseTrack};
 use chirpmap_core::error::Num;
@@ -74,6 +74,7 @@ pub fn read_poses(path: &Path, listener: u32) -> Result<Poses> {
 /// Parses a poses CSV held in memory; `name` is used in messages.
 pub fn parse_poses(bytes: &[u8], name: &str, listener: u32) -> Result<Poses> {
     let lines = LineIndex::new(bytes);
+    check_quotes_closed(bytes, &lines, name)?;
     let mut rdr = csv::ReaderBuilder::new().trim(csv::Trim::All).flexible(true).from_reader(bytes);
     let header: Vec<String> = rdr
         .byte_headers()
@@ -206,6 +207,7 @@ mod tests {
             ("t,x,y,listener\n0,0,0,-1\n", "p.csv:2: column listener"),
             ("t,x,y,listener\n0,0,0,1\n", "no poses for listener 0"),
             ("t,x,y\n0,0\n", "p.csv:2: missing column `y`"),
+            ("t,x,y\n0,0,0\n1,1,\"0\n", "p.csv:3: a quoted field opened here is never closed"),
         ];
         for (input, want) in cases {
             let e = err(input);

@@ -158,6 +158,15 @@ fn bad_inputs_give_clear_errors_without_panics() {
     write_test_wav(&silent, SampleFormat::Int(16), &vec![0.0; 48_000]);
     let (ok, e) = range_err(&silent, &[]);
     assert!(!ok && e.contains("silent"), "{e}");
+    // A NaN sample (a damaged float file): refused, naming the file and the sample, not read as
+    // silence or clipping. Every other sample is a valid recording's.
+    let mut damaged = chirpmap_audio::read_wav(&good).unwrap().channels.swap_remove(0);
+    damaged[30_000] = f32::NAN;
+    let pd = d.join("nan.wav");
+    write_test_wav(&pd, SampleFormat::Float32, &damaged);
+    let (ok, e) = range_err(&pd, &[]);
+    assert!(!ok && e.contains("nan.wav") && e.contains("float sample 30000 of channel 0 is NaN"), "{e}");
+    assert!(!e.contains("clipping") && !e.contains("silent"), "{e}");
     // No chirp: noise only.
     let noise: Vec<f32> =
         (0..96_000u32).map(|i| ((i.wrapping_mul(2_654_435_761) >> 16) as f32 / 65_536.0 - 0.5) * 0.2).collect();

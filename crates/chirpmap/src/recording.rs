@@ -643,7 +643,12 @@ pub(crate) fn first_pass<T>(
     let n_channels = wav.n_channels;
     let mut src = Filtered::new(wav, sos);
     let scanned = scan(&mut src);
-    if !src.any_nonzero_input && !matches!(scanned, Err(ScanError::Audio(chirpmap_audio::AudioError::Truncated(_)))) {
+    // A damaged file is reported as such, not as the silence read before the damage.
+    let damaged = matches!(
+        scanned,
+        Err(ScanError::Audio(chirpmap_audio::AudioError::Truncated(_) | chirpmap_audio::AudioError::NonFinite { .. }))
+    );
+    if !src.any_nonzero_input && !damaged {
         let hint =
             if n_channels > 1 { format!(" (it has {n_channels} channels: try --channel)") } else { String::new() };
         return Err(Error::Invalid(format!("channel {channel} is silent (every sample is zero){hint}")));
