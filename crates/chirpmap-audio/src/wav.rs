@@ -211,8 +211,30 @@ pub fn read_wav_bytes(bytes: &[u8]) -> Result<Recording, AudioError> {
 }
 
 /// Reads a WAV file from disk.
+/// Reads no more than the decoded-size cap allows (a 32-bit file decodes to
+/// its own size; headers add little), so a huge file is refused before it
+/// is read and an endless stream (`/dev/zero`, a FIFO) stops at the cap.
 pub fn read_wav(path: &Path) -> Result<Recording, AudioError> {
-    let bytes = std::fs::read(path).map_err(|source| AudioError::Io { path: path.display().to_string(), source })?;
+    use std::io::Read;
+    let io = |source| AudioError::Io { path: path.display().to_string(), source };
+    let file = std::fs::File::open(path).map_err(io)?;
+    let cap = u64::try_from(crate::error::MEMORY_CAP_BYTES).unwrap_or(u64::MAX).saturating_add(1 << 20);
+    let too_large = |bytes: u64| {
+        crate::error::check_memory(
+            || "reading the WAV file".to_string(),
+            u128::from(bytes),
+            "split the recording into shorter files",
+        )
+    };
+    let meta = file.metadata().map_err(io)?;
+    if meta.is_file() && meta.len() > cap {
+        too_large(meta.len())?;
+    }
+    let mut bytes = Vec::new();
+    file.take(cap + 1).read_to_end(&mut bytes).map_err(io)?;
+    if bytes.len() as u64 > cap {
+        too_large(bytes.len() as u64)?;
+    }
     read_wav_bytes(&bytes)
 }
 

@@ -11,6 +11,11 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+/// The most worker threads `--threads` takes: each holds a run's working
+/// memory, so a mistyped count (a million) used to start threads for a
+/// minute and then fail.
+const MAX_THREADS: u64 = 1024;
+
 #[derive(Debug, Args)]
 pub struct SweepArgs {
     /// A preset (`table1`, `table2`) or a sweep TOML file.
@@ -21,9 +26,9 @@ pub struct SweepArgs {
     /// Override the number of runs per configuration.
     #[arg(long)]
     pub runs: Option<u64>,
-    /// Worker threads (default: all cores). Results do not depend on it.
-    #[arg(long)]
-    pub threads: Option<usize>,
+    /// Worker threads (default: all cores), 1 to 1024. Results do not depend on it.
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=MAX_THREADS))]
+    pub threads: Option<u64>,
     /// Run only shard I of N (0-based), e.g. `--shard 2/8`; join shards with `chirpmap merge`.
     #[arg(long, value_parser = parse_shard)]
     pub shard: Option<Shard>,
@@ -53,7 +58,7 @@ pub fn load_sweep(arg: &str) -> Result<SweepDef> {
     if !path.exists() {
         bail!("unknown preset {arg:?} and no such sweep file (presets: {})", PRESETS.join(", "));
     }
-    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read sweep {}", path.display()))?;
+    let text = crate::files::read_text_input(path, "sweep file", crate::files::MAX_TOML_BYTES)?;
     SweepDef::from_toml_str(&text).map_err(|e| anyhow!("{}: {e}", path.display()))
 }
 
@@ -61,12 +66,23 @@ fn plan(def: &SweepDef) -> Result<Plan, chirpmap_experiments::ExperimentError> {
     def.plan(chirpmap_experiments::pipeline::validate_scene)
 }
 
+/// Draws summary.png (into a hidden file moved into place, so a failure
+/// keeps the previous figure whole).
 fn finish(dir: &Path, plan: &Plan, summaries: &[chirpmap_experiments::summary::ConfigSummary]) -> Result<()> {
     let png = dir.join("summary.png");
-    plot_summary(&png, plan, summaries)?;
+    let staged = dir.join(format!(".chirpmap-summary-{}.png", std::process::id()));
+    let drawn = plot_summary(&staged, plan, summaries)
+        .and_then(|()| std::fs::rename(&staged, &png).map_err(anyhow::Error::from))
+        .with_context(|| format!("cannot write {}", png.display()));
+    if drawn.is_err() {
+        std::fs::remove_file(&staged).ok();
+    }
+    drawn
+}
+
+fn print_summary(dir: &Path) {
     let md = std::fs::read_to_string(dir.join("summary.md")).unwrap_or_default();
     say!("{md}");
-    Ok(())
 }
 
 pub fn run_sweep_cmd(args: &SweepArgs, no_progress: bool) -> Result<()> {
@@ -76,10 +92,11 @@ pub fn run_sweep_cmd(args: &SweepArgs, no_progress: bool) -> Result<()> {
     }
     let plan = plan(&def)?;
     let shard = args.shard.unwrap_or(Shard::ALL);
-    let threads = args.threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
-    if threads == 0 {
-        bail!("--threads must be at least 1");
-    }
+    // At most MAX_THREADS (the parser's range), so the conversion cannot fail.
+    let threads = args.threads.map_or_else(
+        || std::thread::available_parallelism().map_or(1, |n| n.get()),
+        |n| usize::try_from(n).unwrap_or(1),
+    );
     let total = plan.shard_jobs(shard).len();
     let bar = ProgressBar::new(total as u64);
     if no_progress {
@@ -96,6 +113,7 @@ pub fn run_sweep_cmd(args: &SweepArgs, no_progress: bool) -> Result<()> {
         })?;
     bar.finish_and_clear();
     let secs = started.elapsed().as_secs_f64();
+    finish(&args.out, &plan, &outcome.summaries)?;
     eprintln!(
         "{}: {} runs done ({} resumed, {} run now) in {secs:.1} s on {threads} threads ({:.1} runs/s); wrote {}",
         plan.def.name,
@@ -105,7 +123,8 @@ pub fn run_sweep_cmd(args: &SweepArgs, no_progress: bool) -> Result<()> {
         outcome.executed as f64 / secs.max(1e-9),
         args.out.display()
     );
-    finish(&args.out, &plan, &outcome.summaries)
+    print_summary(&args.out);
+    Ok(())
 }
 
 pub fn run_merge_cmd(args: &MergeArgs) -> Result<()> {
@@ -129,6 +148,8 @@ pub fn run_merge_cmd(args: &MergeArgs) -> Result<()> {
     }
     let (_, def) = chirpmap_experiments::driver::read_sweep_def(inputs[0])?;
     let plan = plan(&def)?;
+    finish(&args.out, &plan, &outcome.summaries)?;
     eprintln!("merged {} runs from {} directories into {}", outcome.rows.len(), inputs.len(), args.out.display());
-    finish(&args.out, &plan, &outcome.summaries)
+    print_summary(&args.out);
+    Ok(())
 }

@@ -108,7 +108,7 @@ pub fn check_quotes_closed(bytes: &[u8], lines: &LineIndex<'_>, name: &str) -> R
 
 /// Reads and validates every row; errors name the file, line and column.
 pub fn read_echoes(path: &Path) -> Result<Vec<Echo>> {
-    let bytes = std::fs::read(path).with_context(|| format!("cannot open echoes file {}", path.display()))?;
+    let bytes = crate::files::read_input(path, "echoes file", crate::files::MAX_CSV_BYTES)?;
     parse_echoes(&bytes[..], &path.display().to_string())
 }
 

@@ -1,13 +1,14 @@
 //! Reading the commands' input files into the facade's plain data, naming
 //! the file in every error.
 
+use crate::files::{MAX_TOML_BYTES, read_text_input};
 use anyhow::{Context, Result, anyhow, bail};
 use chirpmap::{ChirpSpec, Prepared, Scene, SynthConfig};
 use std::path::Path;
 
 /// Loads a scene file (with its optional `[synth]` table).
 pub fn load_scene(path: &Path) -> Result<(Scene, SynthConfig)> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read scene {}", path.display()))?;
+    let text = read_text_input(path, "scene", MAX_TOML_BYTES)?;
     chirpmap::parse_scene(&text).map_err(|e| anyhow!("{}: {e}", path.display()))
 }
 

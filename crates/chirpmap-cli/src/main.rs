@@ -17,6 +17,7 @@ mod cmd_simulate;
 mod cmd_sweep;
 mod cmd_synth;
 mod echoes_csv;
+mod files;
 mod inputs;
 mod mapdata;
 mod mapout;

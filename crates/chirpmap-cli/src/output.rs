@@ -7,7 +7,12 @@
 //!   staging folder beside their destination and moved into place (renames
 //!   within one directory) only when every one of them was written;
 //! - the debris of a killed run (a staging folder whose owner is gone) is
-//!   removed by the next run in that place.
+//!   removed by the next run in that place; nothing else is ever removed;
+//! - runs writing into one place at the same time (`make -j`, two terminals,
+//!   a resubmitted job) see each other's changes whole: reading and changing
+//!   what a directory holds (debris, manifest, the outputs' names) is done
+//!   under an exclusive lock on the directory ([`DirLock`]), taken only for
+//!   those moments, never for the work itself.
 //!
 //! Ownership is recorded in a manifest beside the outputs: each line holds a
 //! file name and the identity (device, inode, size, modification time) the
@@ -27,6 +32,41 @@ const FILE_MANIFEST: &str = ".chirpmap-files";
 const STAGING_PREFIX: &str = ".chirpmap-partial-";
 /// Held (locked) by the owner of a staging folder for as long as it runs.
 const LOCK_FILE: &str = "lock";
+/// Locked while a run looks at or changes what an output directory holds.
+const DIR_LOCK: &str = ".chirpmap-lock";
+
+/// An exclusive lock on an output directory (see the module's doc); released
+/// when dropped. The directory itself is locked (`flock` on its descriptor,
+/// so nothing is added to it); where a file system cannot lock a directory
+/// (NFS emulates `flock` with POSIX locks, which need a file open for
+/// writing), a [`DIR_LOCK`] file in it is locked instead.
+#[derive(Debug)]
+struct DirLock {
+    _file: File,
+}
+
+impl DirLock {
+    fn take(dir: &Path) -> Result<Self> {
+        if let Ok(file) = File::open(dir)
+            && file.lock().is_ok()
+        {
+            return Ok(Self { _file: file });
+        }
+        let path = dir.join(DIR_LOCK);
+        // Read-only when another user's lock file is there (a shared /tmp):
+        // `flock` needs no write access.
+        let file = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(false)
+            .open(&path)
+            .or_else(|_| File::open(&path))
+            .with_context(|| format!("cannot open the lock {}", path.display()))?;
+        file.lock().with_context(|| format!("cannot lock {}", path.display()))?;
+        Ok(Self { _file: file })
+    }
+}
 
 /// What identifies a file's contents as the ones chirpmap wrote.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -63,7 +103,7 @@ fn same_file(a: &Path, b: &Path) -> bool {
 
 /// A manifest: file name → identity when written (`None`: an older
 /// chirpmap's name-only line, trusted as ours).
-#[derive(Debug, Default)]
+#[derive(Debug, Default, Clone)]
 struct Manifest {
     entries: Vec<(String, Option<Identity>)>,
 }
@@ -94,19 +134,22 @@ impl Manifest {
     }
 
     /// Whether `dir/name` is a file chirpmap wrote and nobody changed since.
+    /// A name may be listed with several identities: the manifest written
+    /// before a commit's renames lists both the old and the new file.
     fn owns(&self, dir: &Path, name: &str) -> bool {
-        match (self.get(name), std::fs::symlink_metadata(dir.join(name))) {
-            (Some(None), Ok(m)) => m.is_file(),
-            (Some(Some(id)), Ok(m)) => m.is_file() && Identity::of(&m) == *id,
-            _ => false,
-        }
+        let Ok(m) = std::fs::symlink_metadata(dir.join(name)) else { return false };
+        m.is_file()
+            && self
+                .entries
+                .iter()
+                .filter(|(n, _)| n == name)
+                .any(|(_, id)| id.as_ref().is_none_or(|id| *id == Identity::of(&m)))
     }
 
+    /// Lists `name` with `id` only.
     fn set(&mut self, name: &str, id: Identity) {
-        match self.entries.iter_mut().find(|(n, _)| n == name) {
-            Some(e) => e.1 = Some(id),
-            None => self.entries.push((name.to_string(), Some(id))),
-        }
+        self.entries.retain(|(n, _)| n != name);
+        self.entries.push((name.to_string(), Some(id)));
     }
 
     fn text(&self) -> String {
@@ -120,39 +163,28 @@ impl Manifest {
     }
 }
 
-/// Removes staging folders (and older chirpmap's `NAME.partial-PID` files)
-/// whose owner is no longer running.
+/// Removes the staging folders of runs that are gone: a folder named
+/// [`STAGING_PREFIX`]`PID` whose lock file nobody holds. Called with the
+/// directory locked ([`DirLock`]); a run creates its staging folder and
+/// locks its lock file under that same lock, so a folder is never seen
+/// between the two. Nothing else is removed: a folder of that name without a
+/// lock file, or a user's `NAME.partial-123` (older chirpmaps staged files
+/// under such names, and removed any whose process id was not running, which
+/// could be a user's file or a run on another host), is left alone.
 fn clean_debris(dir: &Path) {
     let Ok(entries) = std::fs::read_dir(dir) else { return };
     for entry in entries.flatten() {
         let name = entry.file_name().to_string_lossy().into_owned();
+        let Some(pid) = name.strip_prefix(STAGING_PREFIX) else { continue };
+        if pid.is_empty() || !pid.bytes().all(|b| b.is_ascii_digit()) {
+            continue;
+        }
         let path = entry.path();
-        if let Some(pid) = name.strip_prefix(STAGING_PREFIX) {
-            if pid.parse::<u32>().is_err() {
-                continue;
-            }
-            let abandoned = match File::open(path.join(LOCK_FILE)) {
-                // The owner holds the lock while it runs; the lock dies with it.
-                Ok(f) => f.try_lock().is_ok(),
-                Err(_) => !process_alive(pid),
-            };
-            if abandoned {
-                std::fs::remove_dir_all(&path).ok();
-            }
-        } else if let Some((_, pid)) = name.rsplit_once(".partial-")
-            && pid.parse::<u32>().is_ok()
-            && !process_alive(pid)
-            && path.is_file()
-        {
-            std::fs::remove_file(&path).ok();
+        let abandoned = File::open(path.join(LOCK_FILE)).is_ok_and(|f| f.try_lock().is_ok());
+        if abandoned {
+            std::fs::remove_dir_all(&path).ok();
         }
     }
-}
-
-/// Whether a process id is running (Linux: /proc; elsewhere assume it is,
-/// so nothing is removed that might be in use).
-fn process_alive(pid: &str) -> bool {
-    if cfg!(target_os = "linux") { Path::new("/proc").join(pid).exists() } else { true }
 }
 
 /// Where outputs go: a directory that is the run's (stale outputs of the
@@ -193,14 +225,19 @@ impl Staged {
         }
         let created_dir = !dir.exists();
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create output directory {}", dir.display()))?;
-        clean_debris(dir);
-        let manifest = Manifest::read(&dir.join(manifest_name(mode)));
         let refuse = |e: anyhow::Error| {
             if created_dir {
+                std::fs::remove_file(dir.join(DIR_LOCK)).ok();
                 std::fs::remove_dir(dir).ok();
             }
             Err(e)
         };
+        let guard = match DirLock::take(dir) {
+            Ok(g) => g,
+            Err(e) => return refuse(e),
+        };
+        clean_debris(dir);
+        let manifest = Manifest::read(&dir.join(manifest_name(mode)));
         for name in outputs {
             let target = dir.join(name);
             if let Some(input) = inputs.iter().find(|i| same_file(i, &target)) {
@@ -229,9 +266,11 @@ impl Staged {
             Ok(l) => l,
             Err(e) => {
                 std::fs::remove_dir_all(&staging).ok();
+                drop(guard);
                 return refuse(e);
             }
         };
+        drop(guard);
         Ok(Self {
             dir: dir.to_path_buf(),
             mode,
@@ -260,18 +299,32 @@ impl Staged {
         std::fs::write(&p, contents).with_context(|| format!("cannot write {}", self.dir.join(name).display()))
     }
 
-    /// Moves every written output into place, then records them in the
-    /// manifest. In an output directory, files the previous run listed but
-    /// this one did not write (say `spectra.csv` of an earlier `--spectra`)
-    /// are removed, unless they are inputs of this run or were changed.
+    /// Moves every written output into place and records them in the
+    /// manifest, with the directory locked. In an output directory, files the
+    /// previous run listed but this one did not write (say `spectra.csv` of an
+    /// earlier `--spectra`) are removed, unless they are inputs of this run or
+    /// were changed. Before the first rename, the manifest lists both the
+    /// files in place and this run's, so a run killed during the renames
+    /// leaves outputs the next run may replace (not a directory it refuses).
     pub fn commit(mut self) -> Result<PathBuf> {
+        let _guard = DirLock::take(&self.dir)?;
         let manifest_path = self.dir.join(manifest_name(self.mode));
         let old = Manifest::read(&manifest_path);
         let written: Vec<String> = self.outputs.iter().filter(|o| o.1).map(|o| o.0.clone()).collect();
-        // The new manifest is complete before anything moves: identities
-        // survive a rename within the directory.
+        // A file that appeared while this run worked (a user's, or another
+        // program's) is refused as it would have been at the start.
+        for name in &written {
+            let target = self.dir.join(name);
+            if std::fs::symlink_metadata(&target).is_ok() && !old.owns(&self.dir, name) {
+                bail!(
+                    "{} appeared while this run worked and was not written by chirpmap; refusing to overwrite it: \
+                     move it away or choose another output",
+                    target.display()
+                );
+            }
+        }
         let mut new = match self.mode {
-            Mode::Files => old,
+            Mode::Files => old.clone(),
             Mode::Dir => {
                 let mut kept = Manifest::default();
                 for (name, id) in &old.entries {
@@ -283,31 +336,36 @@ impl Staged {
                 kept
             }
         };
+        // Identities survive a rename within the directory.
+        let mut both = old.clone();
         for name in &written {
             let p = self.staging.join(name);
             let meta = std::fs::metadata(&p).with_context(|| format!("cannot read back {}", p.display()))?;
             new.set(name, Identity::of(&meta));
+            both.entries.push((name.clone(), Some(Identity::of(&meta))));
         }
-        let staged_manifest = self.staging.join(manifest_name(self.mode));
-        std::fs::write(&staged_manifest, new.text())
-            .with_context(|| format!("cannot write {}", manifest_path.display()))?;
+        let put_manifest = |m: &Manifest, staged_name: &str| -> Result<()> {
+            let staged = self.staging.join(staged_name);
+            std::fs::write(&staged, m.text()).with_context(|| format!("cannot write {}", manifest_path.display()))?;
+            std::fs::rename(&staged, &manifest_path).with_context(|| {
+                format!("cannot update {} (in a shared directory, is it another user's?)", manifest_path.display())
+            })
+        };
+        put_manifest(&both, "manifest-during-commit")?;
         let stale: Vec<String> = match self.mode {
             Mode::Files => Vec::new(),
-            Mode::Dir => {
-                let old = Manifest::read(&manifest_path);
-                old.entries
-                    .iter()
-                    .map(|(n, _)| n.clone())
-                    .filter(|n| !written.contains(n) && new.get(n).is_none() && old.owns(&self.dir, n))
-                    .collect()
-            }
+            Mode::Dir => old
+                .entries
+                .iter()
+                .map(|(n, _)| n.clone())
+                .filter(|n| !written.contains(n) && new.get(n).is_none() && old.owns(&self.dir, n))
+                .collect(),
         };
         for name in &written {
             let (from, to) = (self.staging.join(name), self.dir.join(name));
             std::fs::rename(&from, &to).with_context(|| format!("cannot move {} into place", to.display()))?;
         }
-        std::fs::rename(&staged_manifest, &manifest_path)
-            .with_context(|| format!("cannot move {} into place", manifest_path.display()))?;
+        put_manifest(&new, "manifest")?;
         for name in stale {
             std::fs::remove_file(self.dir.join(name)).ok();
         }
@@ -401,7 +459,12 @@ impl Drop for Staged {
         if !self.committed {
             std::fs::remove_dir_all(&self.staging).ok();
             // Leave no empty directory behind that we created.
-            if self.created_dir {
+            // (Its lock file too, unless another run has written there since.)
+            let only_the_lock = || {
+                std::fs::read_dir(&self.dir).is_ok_and(|mut e| e.all(|e| e.is_ok_and(|e| e.file_name() == DIR_LOCK)))
+            };
+            if self.created_dir && only_the_lock() {
+                std::fs::remove_file(self.dir.join(DIR_LOCK)).ok();
                 std::fs::remove_dir(&self.dir).ok();
             }
         }
@@ -476,15 +539,61 @@ mod tests {
             s.write("a.csv", "1").expect("write");
         }
         assert!(!out.exists());
-        // Debris of a killed run: a staging folder with an unlocked lock file,
-        // and an older chirpmap's partial file of a process that is gone.
+        // Debris of a killed run: a staging folder with an unlocked lock file.
         let dead = t.path().join(format!("{STAGING_PREFIX}4000000000"));
         std::fs::create_dir_all(&dead).expect("mkdir");
         std::fs::write(dead.join(LOCK_FILE), "").expect("lock");
-        std::fs::write(t.path().join("x.wav.partial-4000000000"), "").expect("partial");
+        // Not debris: a user's file named like an older chirpmap's partial
+        // file, and a folder named like a staging folder without a lock.
+        std::fs::write(t.path().join("thesis.tex.partial-4000000000"), "draft").expect("partial");
+        let users = t.path().join(format!("{STAGING_PREFIX}17"));
+        std::fs::create_dir_all(&users).expect("mkdir");
+        std::fs::write(users.join("notes.txt"), "mine").expect("notes");
         let s = StagedFiles::new(&[&t.path().join("x.wav")], &[]).expect("files");
         drop(s);
-        assert_eq!(names(t.path()), Vec::<String>::new());
+        assert_eq!(names(t.path()), vec![format!("{STAGING_PREFIX}17"), "thesis.tex.partial-4000000000".into()]);
+        assert_eq!(std::fs::read_to_string(users.join("notes.txt")).expect("kept"), "mine");
+    }
+
+    #[test]
+    fn a_live_runs_staging_folder_is_never_removed() {
+        let t = tempfile::tempdir().expect("tmp");
+        let mut first = Staged::dir(t.path(), &["a.csv"], &[]).expect("first");
+        first.write("a.csv", "1").expect("write");
+        // Another run starting meanwhile cleans debris: not the first's folder.
+        let (tx, rx) = std::sync::mpsc::channel();
+        let dir = t.path().to_path_buf();
+        std::thread::spawn(move || {
+            clean_debris(&dir);
+            tx.send(()).ok();
+        });
+        rx.recv().expect("cleaned");
+        assert_eq!(first.commit().expect("commit"), t.path());
+        assert_eq!(std::fs::read_to_string(t.path().join("a.csv")).expect("read"), "1");
+    }
+
+    #[test]
+    fn a_commit_killed_between_renames_leaves_outputs_the_next_run_may_replace() {
+        let t = tempfile::tempdir().expect("tmp");
+        let mut s = Staged::dir(t.path(), &["a.csv", "b.csv"], &[]).expect("new");
+        s.write("a.csv", "old").expect("write");
+        s.write("b.csv", "old").expect("write");
+        s.commit().expect("commit");
+        // What a commit writes before its first rename: the manifest in place
+        // lists both the files there and the run's new ones.
+        let staged = t.path().join("staged-a.csv");
+        std::fs::write(&staged, "new").expect("new a");
+        let mut both = Manifest::read(&t.path().join(DIR_MANIFEST));
+        both.entries.push(("a.csv".into(), Some(Identity::of(&std::fs::metadata(&staged).expect("meta")))));
+        std::fs::write(t.path().join(DIR_MANIFEST), both.text()).expect("manifest");
+        // Killed after the first of the renames.
+        std::fs::rename(&staged, t.path().join("a.csv")).expect("rename");
+        let mut s = Staged::dir(t.path(), &["a.csv", "b.csv"], &[]).expect("the next run is not refused");
+        s.write("a.csv", "2").expect("write");
+        s.write("b.csv", "2").expect("write");
+        s.commit().expect("commit");
+        let text = std::fs::read_to_string(t.path().join(DIR_MANIFEST)).expect("manifest");
+        assert_eq!(text.lines().count(), 2, "one identity per file once committed: {text}");
     }
 
     #[test]

@@ -67,7 +67,7 @@ impl Poses {
 
 /// Reads listener `listener`'s poses from `path`.
 pub fn read_poses(path: &Path, listener: u32) -> Result<Poses> {
-    let bytes = std::fs::read(path).with_context(|| format!("cannot read poses {}", path.display()))?;
+    let bytes = crate::files::read_input(path, "poses file", crate::files::MAX_CSV_BYTES)?;
     parse_poses(&bytes, &path.display().to_string(), listener)
 }
 

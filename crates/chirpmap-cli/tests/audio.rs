@@ -190,6 +190,19 @@ fn bad_inputs_give_clear_errors_without_panics() {
     ]);
     assert!(!o.status.success() && stderr(&o).contains("same point"), "{}", stderr(&o));
     assert!(!d.join("x").exists());
+    // Huge values print as a person writes them, not as 300 digits.
+    for (flag, want) in [
+        ("--speed-of-sound", "got 1e300"),
+        ("--max-delta-d", "1e300 m is longer than"),
+        ("--ringing-ms", "got 1e300 ms"),
+    ] {
+        let mut args = vec![flag, "1e300"];
+        if flag == "--ringing-ms" {
+            args.push("--echoes");
+        }
+        let (ok, e) = range_err(&good, &args);
+        assert!(!ok && e.contains(want) && e.len() < 200, "{flag}: {e}");
+    }
     // Missing channel.
     let (ok, e) = range_err(&good, &["--channel", "3"]);
     assert!(!ok && e.contains("channel 3"), "{e}");

@@ -20,6 +20,9 @@ mod sweep;
 #[path = "../src/echoes_csv.rs"]
 mod echoes_csv;
 #[allow(dead_code)]
+#[path = "../src/files.rs"]
+mod files;
+#[allow(dead_code)]
 #[path = "../src/poses_csv.rs"]
 mod poses_csv;
 

@@ -140,9 +140,12 @@ fn out_that_is_a_file_is_refused_before_work() {
 fn debris_of_a_killed_run_is_removed_by_the_next_run() {
     let d = tmp("debris");
     let out = d.join("run");
+    // A killed run's staging folder: its lock file is there, and nobody holds it.
     std::fs::create_dir_all(out.join(".chirpmap-partial-4000000000")).unwrap();
+    std::fs::write(out.join(".chirpmap-partial-4000000000/lock"), "").unwrap();
     std::fs::write(out.join(".chirpmap-partial-4000000000/map.png"), "half").unwrap();
-    std::fs::write(d.join("x.wav.partial-4000000000"), "half").unwrap();
+    // A user's file that only looks like debris (older chirpmaps removed it).
+    std::fs::write(d.join("thesis.tex.partial-4000000000"), "draft").unwrap();
     let scene = d.join("s.toml");
     std::fs::write(&scene, SCENE).unwrap();
     let o = run(&["simulate", s(&scene), "--out", s(&out)]);
@@ -150,5 +153,47 @@ fn debris_of_a_killed_run_is_removed_by_the_next_run() {
     assert!(!out.join(".chirpmap-partial-4000000000").exists());
     let o = run(&["synth", s(&scene), "--out", s(&d.join("x.wav"))]);
     assert!(o.status.success(), "{}", stderr(&o));
-    assert!(!d.join("x.wav.partial-4000000000").exists());
+    assert_eq!(std::fs::read_to_string(d.join("thesis.tex.partial-4000000000")).unwrap(), "draft");
+}
+
+/// Runs started together into one place (`make -j`, a resubmitted job): every
+/// one succeeds, the manifest records every file, and each output can be
+/// written again; no run deletes another's staging folder.
+#[test]
+fn concurrent_runs_into_one_place_keep_every_record() {
+    let d = tmp("concurrent");
+    let scene = d.join("s.toml");
+    std::fs::write(&scene, SCENE).unwrap();
+    let spawn = |args: &[&str]| {
+        Command::new(env!("CARGO_BIN_EXE_chirpmap"))
+            .args(args)
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap()
+    };
+    for round in 0..3 {
+        let wavs: Vec<PathBuf> = (0..4).map(|i| d.join(format!("r{round}-{i}.wav"))).collect();
+        let kids: Vec<_> = wavs.iter().map(|w| spawn(&["synth", s(&scene), "--out", s(w)])).collect();
+        for k in kids {
+            let o = k.wait_with_output().unwrap();
+            assert!(o.status.success(), "{}", stderr(&o));
+        }
+        let listed = std::fs::read_to_string(d.join(".chirpmap-files")).unwrap();
+        for w in &wavs {
+            let name = w.file_name().unwrap().to_str().unwrap();
+            assert!(listed.lines().any(|l| l.split('\t').next() == Some(name)), "{name} not recorded:\n{listed}");
+        }
+    }
+    let out = d.join("same");
+    for _ in 0..3 {
+        let kids: Vec<_> = (0..3).map(|_| spawn(&["simulate", s(&scene), "--out", s(&out)])).collect();
+        for k in kids {
+            let o = k.wait_with_output().unwrap();
+            assert!(o.status.success(), "{}", stderr(&o));
+        }
+        let o = run(&["simulate", s(&scene), "--out", s(&out)]);
+        assert!(o.status.success(), "a rerun was refused: {}", stderr(&o));
+    }
+    assert!(std::fs::read_dir(&d).unwrap().flatten().all(|e| !e.file_name().to_string_lossy().contains("partial")));
 }

@@ -68,6 +68,22 @@ fn sweep_writes_tables_and_is_thread_count_independent() {
     assert!(md.contains("| 3 | U(10,100) ms | 3 |"), "{md}");
     let stdout = String::from_utf8_lossy(&o.stdout);
     assert!(stdout.contains("score_obstacle"), "summary printed: {stdout}");
+    // The figure was staged and moved into place: no hidden leftovers.
+    let hidden: Vec<String> = std::fs::read_dir(&a)
+        .unwrap()
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n.starts_with(".chirpmap-summary"))
+        .collect();
+    assert!(hidden.is_empty(), "{hidden:?}");
+    // A thread count out of 1..=1024 is refused by the argument parser, before anything is written.
+    for bad in ["0", "1025", "18446744073709551615"] {
+        let c = tmp.path().join(format!("c{bad}"));
+        let o = chirpmap(&["sweep", &sweep, "--out", c.to_str().unwrap(), "--threads", bad, "--no-progress"]);
+        let e = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success() && e.contains("--threads") && e.contains("1..=1024"), "{bad}: {e}");
+        assert!(!c.exists());
+    }
 }
 
 #[test]

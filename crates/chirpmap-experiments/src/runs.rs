@@ -260,7 +260,15 @@ pub struct RunsFile {
     file: std::fs::File,
     /// Rows already in the file, keyed by job (the runs a resume skips).
     pub done: BTreeMap<Job, RunRow>,
+    /// Locked for as long as this sweep writes into the directory.
+    _lock: std::fs::File,
 }
+
+/// Locked by the sweep writing into a directory: a second sweep started
+/// into it (two terminals, a Slurm task resubmitted while the first still
+/// runs) is refused, where it used to run every job again beside the first
+/// and leave runs.csv with each row twice.
+pub const SWEEP_LOCK_FILE: &str = ".chirpmap-sweep-lock";
 
 /// Name of the sweep definition copied into an output directory.
 pub const SWEEP_FILE: &str = "sweep.toml";
@@ -311,6 +319,27 @@ impl RunsFile {
                 std::fs::write(&sweep_path, &sweep_text).map_err(|e| ExperimentError::io(&sweep_path, e))?;
             }
         }
+        // Taken once the directory is known to be this sweep's (a refused
+        // directory gets nothing written into it).
+        let lock_path = dir.join(SWEEP_LOCK_FILE);
+        let lock = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(false)
+            .open(&lock_path)
+            .map_err(|e| ExperimentError::io(&lock_path, e))?;
+        match lock.try_lock() {
+            Ok(()) => {}
+            Err(std::fs::TryLockError::WouldBlock) => {
+                return Err(ExperimentError::file(
+                    &lock_path,
+                    "is locked: another chirpmap sweep is writing into this directory; wait for it to finish \
+                     (then rerun to resume) or use another --out",
+                ));
+            }
+            Err(std::fs::TryLockError::Error(e)) => return Err(ExperimentError::io(&lock_path, e)),
+        }
         match std::fs::read_to_string(&shard_path) {
             Ok(existing) if existing != shard_text => {
                 return Err(ExperimentError::file(
@@ -321,7 +350,7 @@ impl RunsFile {
             Ok(_) => {}
             Err(_) => std::fs::write(&shard_path, &shard_text).map_err(|e| ExperimentError::io(&shard_path, e))?,
         }
-        let mut done = BTreeMap::new();
+        let mut done: BTreeMap<Job, RunRow> = BTreeMap::new();
         if path.exists() {
             let (rows, current) = read_rows_with_format(&path, plan)?;
             if !current {
@@ -329,10 +358,27 @@ impl RunsFile {
                 // file) in the current one before appending rows to it.
                 write_sorted(&path, plan, &rows)?;
             }
+            let mut twice = false;
             for r in rows {
-                if done.insert(r.job, r.clone()).is_some() {
-                    return Err(ExperimentError::file(&path, format!("duplicate row for run ({})", r.job)));
+                // The same run twice with the same results (two sweeps that
+                // once ran into one directory at the same time) is kept
+                // once, as `merge` keeps it; different results are refused.
+                match done.get(&r.job) {
+                    Some(prev) if prev.metrics != r.metrics => {
+                        return Err(ExperimentError::file(
+                            &path,
+                            format!("run ({}) appears twice with different results", r.job),
+                        ));
+                    }
+                    Some(_) => twice = true,
+                    None => {
+                        done.insert(r.job, r);
+                    }
                 }
+            }
+            if twice {
+                let once: Vec<RunRow> = done.values().cloned().collect();
+                write_sorted(&path, plan, &once)?;
             }
             // Drop a partial last line left by a crash before appending.
             let bytes = std::fs::read(&path).map_err(|e| ExperimentError::io(&path, e))?;
@@ -351,7 +397,7 @@ impl RunsFile {
         if file.seek(std::io::SeekFrom::End(0)).map_err(|e| ExperimentError::io(&path, e))? == 0 {
             file.write_all(&csv_line(&header(plan))).map_err(|e| ExperimentError::io(&path, e))?;
         }
-        Ok(Self { path, plan: plan.clone(), file, done })
+        Ok(Self { path, plan: plan.clone(), file, done, _lock: lock })
     }
 
     /// Appends one finished run as a whole line and flushes it.

@@ -366,3 +366,56 @@ fn a_users_summary_files_are_not_overwritten() {
     assert!(e.contains("is a file"), "{e}");
     assert_eq!(std::fs::read_to_string(&f).unwrap(), "mine");
 }
+
+/// A second sweep into a directory another sweep is writing is refused (it
+/// used to run every job again beside the first, writing each row twice),
+/// and a runs.csv that already holds rows twice with the same results (left
+/// by such a pair) resumes, each run kept once; different results are refused.
+#[test]
+fn a_busy_sweep_directory_is_refused_and_doubled_rows_resume() {
+    let plan = SweepDef::from_toml_str(SWEEP).unwrap().plan(|_| Ok(())).unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("s");
+    let (started_tx, started_rx) = std::sync::mpsc::channel();
+    let (go_tx, go_rx) = std::sync::mpsc::channel::<()>();
+    let go_rx = std::sync::Mutex::new(go_rx);
+    std::thread::scope(|scope| {
+        let first = scope.spawn(|| {
+            let once = std::sync::Once::new();
+            run_sweep(
+                &plan,
+                &dir,
+                Shard::ALL,
+                1,
+                |s, r| {
+                    once.call_once(|| {
+                        started_tx.send(()).unwrap();
+                        go_rx.lock().unwrap().recv().unwrap();
+                    });
+                    fake(s, r)
+                },
+                |_, _| {},
+            )
+        });
+        started_rx.recv().unwrap();
+        let e = run_sweep(&plan, &dir, Shard::ALL, 1, fake, |_, _| {}).unwrap_err().to_string();
+        assert!(e.contains(".chirpmap-sweep-lock") && e.contains("another chirpmap sweep"), "{e}");
+        go_tx.send(()).unwrap();
+        assert_eq!(first.join().unwrap().unwrap().rows.len(), 42);
+    });
+    let runs = dir.join("runs.csv");
+    let text = std::fs::read_to_string(&runs).unwrap();
+    let doubled: String = text.lines().chain(text.lines().skip(1)).map(|l| format!("{l}\n")).collect();
+    std::fs::write(&runs, doubled).unwrap();
+    let o = run_sweep(&plan, &dir, Shard::ALL, 1, fake, |_, _| {}).unwrap();
+    assert_eq!((o.rows.len(), o.resumed, o.executed), (42, 42, 0));
+    assert_eq!(std::fs::read_to_string(&runs).unwrap().lines().count(), 43, "each run once, after the header");
+    // The same run with another result is a conflict, not a duplicate.
+    let mut lines: Vec<String> = std::fs::read_to_string(&runs).unwrap().lines().map(String::from).collect();
+    let changed = lines[1].replacen(",0.", ",0.9", 1);
+    assert_ne!(changed, lines[1]);
+    lines.push(changed);
+    std::fs::write(&runs, lines.join("\n") + "\n").unwrap();
+    let e = run_sweep(&plan, &dir, Shard::ALL, 1, fake, |_, _| {}).unwrap_err().to_string();
+    assert!(e.contains("appears twice with different results"), "{e}");
+}

@@ -93,7 +93,7 @@ pub(crate) fn check_speed(a: f64) -> Result<f64> {
     if !(a.is_finite() && (lo..=hi).contains(&a)) {
         return Err(Error::Field {
             field: "speed_of_sound",
-            reason: format!("must be between {lo} and {hi} m/s (air: about 343), got {a}"),
+            reason: format!("must be between {lo} and {hi} m/s (air: about 343), got {}", chirpmap_core::error::Num(a)),
         });
     }
     Ok(a)
@@ -140,7 +140,10 @@ fn template_and_limits(
     let mut lim = RangeLimits::for_chirp(chirp.duration_s, a);
     if let Some(m) = chirp.max_delta_d_m {
         if !(m.is_finite() && m > lim.min_delta_d_m) {
-            return Err(Error::Field { field: "max_delta_d", reason: format!("must be > {} m", lim.min_delta_d_m) });
+            return Err(Error::Field {
+                field: "max_delta_d",
+                reason: format!("must be > {} m", chirpmap_core::error::Num(lim.min_delta_d_m)),
+            });
         }
         // A reflection later than one chirp no longer overlaps its direct
         // sound, and the search window would reach the next chirp.
@@ -149,8 +152,9 @@ fn template_and_limits(
             return Err(Error::Field {
                 field: "max_delta_d",
                 reason: format!(
-                    "{m} m is longer than a·T = {most:.1} m (speed of sound × chirp duration); echoes that late are \
-                     not ranged"
+                    "{} m is longer than a·T = {most:.1} m (speed of sound × chirp duration); echoes that late are \
+                     not ranged",
+                    chirpmap_core::error::Num(m)
                 ),
             });
         }

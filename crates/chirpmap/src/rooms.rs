@@ -19,6 +19,7 @@ use chirpmap_audio::farina::SweepKernel;
 use chirpmap_audio::filter::paper_highpass;
 use chirpmap_audio::rir::{IrExtractor, analytic};
 use chirpmap_audio::stats::median;
+use chirpmap_core::error::Num;
 use chirpmap_core::{Echo, Point};
 use serde::Serialize;
 
@@ -76,7 +77,7 @@ fn largest_delta_d(a: f64, chirp: &ChirpSpec, kernel: &SweepKernel) -> Result<f6
         if !(m.is_finite() && m > 0.0 && m <= most) {
             return Err(Error::Field {
                 field: "max_delta_d",
-                reason: format!("must be > 0 and at most a·T = {most:.1} m, got {m}"),
+                reason: format!("must be > 0 and at most a·T = {most:.1} m, got {}", Num(m)),
             });
         }
         max_dd = m;
@@ -249,19 +250,19 @@ impl EchoOptions {
         if !(self.threshold_db.is_finite() && self.threshold_db < 0.0 && self.threshold_db >= -120.0) {
             return Err(Error::Field {
                 field: "echo_threshold_db",
-                reason: format!("must be in [-120, 0) dB, got {}", self.threshold_db),
+                reason: format!("must be in [-120, 0) dB, got {}", Num(self.threshold_db)),
             });
         }
         if !(self.ringing_s.is_finite() && self.ringing_s > 0.0 && self.ringing_s <= 0.1) {
             return Err(Error::Field {
                 field: "ringing_ms",
-                reason: format!("must be > 0 and at most 100 ms, got {} ms", self.ringing_s * 1e3),
+                reason: format!("must be > 0 and at most 100 ms, got {} ms", Num(self.ringing_s * 1e3)),
             });
         }
         if !(self.echo_atom_s.is_finite() && self.echo_atom_s > 0.0 && self.echo_atom_s <= 0.1) {
             return Err(Error::Field {
                 field: "echo_atom_ms",
-                reason: format!("must be > 0 and at most 100 ms, got {} ms", self.echo_atom_s * 1e3),
+                reason: format!("must be > 0 and at most 100 ms, got {} ms", Num(self.echo_atom_s * 1e3)),
             });
         }
         if !(self.plane_tolerance_m.is_finite() && self.plane_tolerance_m > 0.0) {
@@ -520,7 +521,7 @@ pub fn rir_echoes(
     if !(max_delta_d_m.is_finite() && max_delta_d_m > 0.0) {
         return Err(Error::Field {
             field: "max_delta_d",
-            reason: format!("must be finite and > 0, got {max_delta_d_m}"),
+            reason: format!("must be finite and > 0, got {}", Num(max_delta_d_m)),
         });
     }
     if rir.iter().all(|v| *v == 0.0) {

@@ -1,0 +1,62 @@
+//! Reading whole input files with a size cap (no other dependency, so the
+//! integration tests compile it in with the CSV readers).
+
+use anyhow::{Context, Result, anyhow};
+use std::path::Path;
+
+/// Largest scene or sweep TOML read: 1000 obstacles of 1000 vertices
+/// (`Scene::validate`'s limits) take ~30 MB.
+pub const MAX_TOML_BYTES: u64 = 64 << 20;
+/// Largest echoes or poses CSV read: 10⁷ rows of ~60 bytes.
+pub const MAX_CSV_BYTES: u64 = 1 << 30;
+
+/// Reads a whole input file of at most `cap` bytes; `what` names it in
+/// errors. A larger regular file is refused before it is read, and an
+/// endless stream (`/dev/zero`, a FIFO fed forever) stops at the cap: both
+/// were read whole and grew until memory ran out.
+pub fn read_input(path: &Path, what: &str, cap: u64) -> Result<Vec<u8>> {
+    use std::io::Read;
+    let file = std::fs::File::open(path).with_context(|| format!("cannot read {what} {}", path.display()))?;
+    let refuse = |len: String| anyhow!("{what} {} is {len}, more than a {what} may be ({} bytes)", path.display(), cap);
+    if let Ok(m) = file.metadata()
+        && m.is_file()
+        && m.len() > cap
+    {
+        return Err(refuse(format!("{} bytes", m.len())));
+    }
+    let mut bytes = Vec::new();
+    file.take(cap + 1).read_to_end(&mut bytes).with_context(|| format!("cannot read {what} {}", path.display()))?;
+    if bytes.len() as u64 > cap {
+        return Err(refuse("longer".to_string()));
+    }
+    Ok(bytes)
+}
+
+/// [`read_input`] of a text file: UTF-8, or an error naming the file.
+pub fn read_text_input(path: &Path, what: &str, cap: u64) -> Result<String> {
+    String::from_utf8(read_input(path, what, cap)?).map_err(|e| {
+        anyhow!("cannot read {what} {}: not UTF-8 text (byte {})", path.display(), e.utf8_error().valid_up_to())
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn inputs_beyond_the_cap_are_refused_even_endless_ones() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let p = dir.path().join("s.toml");
+        std::fs::write(&p, "0123456789").expect("write");
+        assert_eq!(read_input(&p, "scene", 10).expect("fits"), b"0123456789");
+        let e = read_input(&p, "scene", 9).expect_err("too large").to_string();
+        assert!(e.contains("s.toml is 10 bytes, more than a scene may be (9 bytes)"), "{e}");
+        if cfg!(target_os = "linux") {
+            let e = read_input(Path::new("/dev/zero"), "echoes file", 1000).expect_err("endless").to_string();
+            assert!(e.contains("/dev/zero is longer"), "{e}");
+        }
+        std::fs::write(&p, [b'a', 0xff, b'b']).expect("write");
+        let e = read_text_input(&p, "scene", 10).expect_err("not UTF-8").to_string();
+        assert!(e.contains("not UTF-8 text (byte 1)"), "{e}");
+    }
+}
