@@ -68,6 +68,40 @@ impl DirLock {
     }
 }
 
+/// This process's staging folders not yet committed or dropped, each with
+/// its output directory when this run created it: what [`abandon_all`]
+/// removes when the process is interrupted. A commit holds the lock while it
+/// moves files, so an interruption waits for it rather than cutting it.
+static LIVE: std::sync::Mutex<Vec<(PathBuf, Option<PathBuf>)>> = std::sync::Mutex::new(Vec::new());
+
+fn live() -> std::sync::MutexGuard<'static, Vec<(PathBuf, Option<PathBuf>)>> {
+    LIVE.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+/// Removes every staging folder of this process (and an output directory it
+/// created, if nothing else is in it), for an interrupted run (Ctrl-C,
+/// SIGTERM) that is about to exit without unwinding. Returns with the
+/// registry locked, so no commit can start before the process exits.
+pub fn abandon_all() -> impl Sized {
+    let mut live = live();
+    for (staging, created) in live.drain(..) {
+        std::fs::remove_dir_all(&staging).ok();
+        if let Some(dir) = created {
+            remove_if_only_the_lock(&dir);
+        }
+    }
+    live
+}
+
+/// Removes `dir` if nothing but a [`DIR_LOCK`] is in it.
+fn remove_if_only_the_lock(dir: &Path) {
+    let only_the_lock = std::fs::read_dir(dir).is_ok_and(|mut e| e.all(|e| e.is_ok_and(|e| e.file_name() == DIR_LOCK)));
+    if only_the_lock {
+        std::fs::remove_file(dir.join(DIR_LOCK)).ok();
+        std::fs::remove_dir(dir).ok();
+    }
+}
+
 /// What identifies a file's contents as the ones chirpmap wrote.
 #[derive(Debug, Clone, PartialEq, Eq)]
 struct Identity(String);
@@ -256,15 +290,19 @@ impl Staged {
             }
         }
         let staging = dir.join(format!("{STAGING_PREFIX}{}", std::process::id()));
-        if let Err(e) = std::fs::create_dir_all(&staging) {
-            return refuse(anyhow::Error::new(e).context(format!("cannot write into {}", dir.display())));
-        }
-        let lock = File::create(staging.join(LOCK_FILE))
-            .and_then(|f| f.lock().map(|()| f))
-            .with_context(|| format!("cannot create {}", staging.display()));
+        // Registered before it exists, so an interruption from now on removes it.
+        live().push((staging.clone(), created_dir.then(|| dir.to_path_buf())));
+        let lock = std::fs::create_dir_all(&staging)
+            .with_context(|| format!("cannot write into {}", dir.display()))
+            .and_then(|()| {
+                File::create(staging.join(LOCK_FILE))
+                    .and_then(|f| f.lock().map(|()| f))
+                    .with_context(|| format!("cannot create {}", staging.display()))
+            });
         let lock = match lock {
             Ok(l) => l,
             Err(e) => {
+                live().retain(|(s, _)| *s != staging);
                 std::fs::remove_dir_all(&staging).ok();
                 drop(guard);
                 return refuse(e);
@@ -308,6 +346,8 @@ impl Staged {
     /// leaves outputs the next run may replace (not a directory it refuses).
     pub fn commit(mut self) -> Result<PathBuf> {
         let _guard = DirLock::take(&self.dir)?;
+        let mut live = live();
+        live.retain(|(s, _)| *s != self.staging);
         let manifest_path = self.dir.join(manifest_name(self.mode));
         let old = Manifest::read(&manifest_path);
         let written: Vec<String> = self.outputs.iter().filter(|o| o.1).map(|o| o.0.clone()).collect();
@@ -371,6 +411,7 @@ impl Staged {
         }
         std::fs::remove_dir_all(&self.staging).ok();
         self.committed = true;
+        drop(live);
         Ok(self.dir.clone())
     }
 }
@@ -457,15 +498,12 @@ fn same_dir(a: &Path, b: &Path) -> bool {
 impl Drop for Staged {
     fn drop(&mut self) {
         if !self.committed {
+            live().retain(|(s, _)| *s != self.staging);
             std::fs::remove_dir_all(&self.staging).ok();
             // Leave no empty directory behind that we created.
             // (Its lock file too, unless another run has written there since.)
-            let only_the_lock = || {
-                std::fs::read_dir(&self.dir).is_ok_and(|mut e| e.all(|e| e.is_ok_and(|e| e.file_name() == DIR_LOCK)))
-            };
-            if self.created_dir && only_the_lock() {
-                std::fs::remove_file(self.dir.join(DIR_LOCK)).ok();
-                std::fs::remove_dir(&self.dir).ok();
+            if self.created_dir {
+                remove_if_only_the_lock(&self.dir);
             }
         }
     }

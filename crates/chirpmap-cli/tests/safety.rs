@@ -197,3 +197,35 @@ fn concurrent_runs_into_one_place_keep_every_record() {
     }
     assert!(std::fs::read_dir(&d).unwrap().flatten().all(|e| !e.file_name().to_string_lossy().contains("partial")));
 }
+
+/// Ctrl-C or SIGTERM during a run: exit 128 + the signal, and neither the
+/// staging folder nor the `--out` the run created is left behind.
+#[cfg(unix)]
+#[test]
+fn an_interrupted_run_leaves_nothing_behind() {
+    let d = tmp("interrupt");
+    for (signal, code) in [("-INT", 130), ("-TERM", 143)] {
+        let out = d.join(format!("bench{code}"));
+        let mut kid = Command::new(env!("CARGO_BIN_EXE_chirpmap"))
+            .args(["--no-progress", "benchmark", "maps", "--runs", "1", "--out", s(&out)])
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        // Wait until the run is at work: its staging folder exists.
+        let started = std::time::Instant::now();
+        while !std::fs::read_dir(&out).is_ok_and(|mut e| e.any(|e| e.is_ok())) {
+            assert!(started.elapsed().as_secs() < 60, "the run never started");
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        }
+        std::thread::sleep(std::time::Duration::from_millis(100));
+        let k = Command::new("kill").args([signal, &kid.id().to_string()]).status().unwrap();
+        assert!(k.success());
+        let status = kid.wait().unwrap();
+        let mut err = String::new();
+        std::io::Read::read_to_string(kid.stderr.as_mut().unwrap(), &mut err).unwrap();
+        assert_eq!(status.code(), Some(code), "{err}");
+        assert!(err.contains("interrupted: unfinished outputs removed"), "{err}");
+        assert!(!out.exists(), "left {:?}", std::fs::read_dir(&out).map(|e| e.count()));
+    }
+}
