@@ -72,9 +72,13 @@ impl DirLock {
 /// its output directory when this run created it: what [`abandon_all`]
 /// removes when the process is interrupted. A commit holds the lock while it
 /// moves files, so an interruption waits for it rather than cutting it.
-static LIVE: std::sync::Mutex<Vec<(PathBuf, Option<PathBuf>)>> = std::sync::Mutex::new(Vec::new());
+static LIVE: std::sync::Mutex<Vec<Live>> = std::sync::Mutex::new(Vec::new());
 
-fn live() -> std::sync::MutexGuard<'static, Vec<(PathBuf, Option<PathBuf>)>> {
+/// A staging folder, and the output directory (with the outermost directory
+/// created on the way to it) when this run created it.
+type Live = (PathBuf, Option<(PathBuf, Option<PathBuf>)>);
+
+fn live() -> std::sync::MutexGuard<'static, Vec<Live>> {
     LIVE.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
 }
 
@@ -86,19 +90,27 @@ pub fn abandon_all() -> impl Sized {
     let mut live = live();
     for (staging, created) in live.drain(..) {
         std::fs::remove_dir_all(&staging).ok();
-        if let Some(dir) = created {
-            remove_if_only_the_lock(&dir);
+        if let Some((dir, top)) = created {
+            remove_created(&dir, top.as_deref());
         }
     }
     live
 }
 
-/// Removes `dir` if nothing but a [`DIR_LOCK`] is in it.
-fn remove_if_only_the_lock(dir: &Path) {
+/// Removes the output directory a run created, if nothing but a
+/// [`DIR_LOCK`] is in it (another run may have written there since), then
+/// the empty directories it created on the way, up to `top`.
+fn remove_created(dir: &Path, top: Option<&Path>) {
     let only_the_lock = std::fs::read_dir(dir).is_ok_and(|mut e| e.all(|e| e.is_ok_and(|e| e.file_name() == DIR_LOCK)));
-    if only_the_lock {
-        std::fs::remove_file(dir.join(DIR_LOCK)).ok();
-        std::fs::remove_dir(dir).ok();
+    if !only_the_lock {
+        return;
+    }
+    std::fs::remove_file(dir.join(DIR_LOCK)).ok();
+    for d in dir.ancestors() {
+        // `remove_dir` removes only empty directories.
+        if std::fs::remove_dir(d).is_err() || top.is_none_or(|t| d == t) {
+            break;
+        }
     }
 }
 
@@ -243,6 +255,9 @@ pub struct Staged {
     committed: bool,
     /// Whether `dir` did not exist before, so a failure may remove it.
     created_dir: bool,
+    /// The outermost directory this run created on the way to `dir`
+    /// (`a` of a new `a/b/c`), removed with the rest when empty.
+    created_top: Option<PathBuf>,
 }
 
 impl Staged {
@@ -257,12 +272,19 @@ impl Staged {
         if dir.exists() && !dir.is_dir() {
             bail!("output {} exists and is not a directory", dir.display());
         }
+        if std::fs::symlink_metadata(dir).is_ok_and(|m| m.is_symlink()) && !dir.exists() {
+            bail!(
+                "output {} is a symbolic link to nothing (dangling); remove it or choose another output",
+                dir.display()
+            );
+        }
         let created_dir = !dir.exists();
+        let created_top =
+            dir.ancestors().take_while(|a| !a.as_os_str().is_empty() && !a.exists()).last().map(Path::to_path_buf);
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create output directory {}", dir.display()))?;
         let refuse = |e: anyhow::Error| {
             if created_dir {
-                std::fs::remove_file(dir.join(DIR_LOCK)).ok();
-                std::fs::remove_dir(dir).ok();
+                remove_created(dir, created_top.as_deref());
             }
             Err(e)
         };
@@ -291,7 +313,7 @@ impl Staged {
         }
         let staging = dir.join(format!("{STAGING_PREFIX}{}", std::process::id()));
         // Registered before it exists, so an interruption from now on removes it.
-        live().push((staging.clone(), created_dir.then(|| dir.to_path_buf())));
+        live().push((staging.clone(), created_dir.then(|| (dir.to_path_buf(), created_top.clone()))));
         let lock = std::fs::create_dir_all(&staging)
             .with_context(|| format!("cannot write into {}", dir.display()))
             .and_then(|()| {
@@ -318,6 +340,7 @@ impl Staged {
             inputs: inputs.iter().map(|p| p.to_path_buf()).collect(),
             committed: false,
             created_dir,
+            created_top,
         })
     }
 
@@ -440,6 +463,10 @@ impl StagedFiles {
             if p.is_dir() {
                 bail!("{} is a directory; give a file path", p.display());
             }
+            // `file_name` of `new/` is `new`: a WAV named like the folder meant.
+            if p.as_os_str().to_string_lossy().ends_with(std::path::MAIN_SEPARATOR) {
+                bail!("{} ends with a path separator, so it names a directory; give a file path", p.display());
+            }
             let parent = p.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new(".")).to_path_buf();
             let k = match dirs.iter().position(|(d, _)| same_dir(d, &parent)) {
                 Some(k) => k,
@@ -503,7 +530,7 @@ impl Drop for Staged {
             // Leave no empty directory behind that we created.
             // (Its lock file too, unless another run has written there since.)
             if self.created_dir {
-                remove_if_only_the_lock(&self.dir);
+                remove_created(&self.dir, self.created_top.as_deref());
             }
         }
     }
@@ -577,6 +604,13 @@ mod tests {
             s.write("a.csv", "1").expect("write");
         }
         assert!(!out.exists());
+        // Every directory created on the way goes too, and nothing above.
+        {
+            let deep = t.path().join("n1/n2/n3");
+            let mut s = Staged::dir(&deep, &["a.csv"], &[]).expect("new");
+            s.write("a.csv", "1").expect("write");
+        }
+        assert!(!t.path().join("n1").exists() && t.path().exists());
         // Debris of a killed run: a staging folder with an unlocked lock file.
         let dead = t.path().join(format!("{STAGING_PREFIX}4000000000"));
         std::fs::create_dir_all(&dead).expect("mkdir");

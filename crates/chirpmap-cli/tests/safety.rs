@@ -134,6 +134,20 @@ fn out_that_is_a_file_is_refused_before_work() {
     assert!(!o.status.success());
     assert!(stderr(&o).contains("is not a directory"), "{}", stderr(&o));
     assert_eq!(std::fs::read_to_string(&f).unwrap(), "x");
+    // A dangling symbolic link, and a single-file output ending in `/`.
+    #[cfg(unix)]
+    {
+        let link = d.join("dangling");
+        std::os::unix::fs::symlink(d.join("nowhere"), &link).unwrap();
+        let o = run(&["simulate", "--out", s(&link)]);
+        assert!(!o.status.success() && stderr(&o).contains("symbolic link to nothing"), "{}", stderr(&o));
+    }
+    let scene = d.join("s.toml");
+    std::fs::write(&scene, SCENE).unwrap();
+    let slash = format!("{}/", s(&d.join("new")));
+    let o = run(&["synth", s(&scene), "--out", &slash]);
+    assert!(!o.status.success() && stderr(&o).contains("names a directory"), "{}", stderr(&o));
+    assert!(!d.join("new").exists());
 }
 
 #[test]

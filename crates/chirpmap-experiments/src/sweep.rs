@@ -166,7 +166,11 @@ impl SweepDef {
         if self.params.is_empty() {
             return Err(err("no parameters to vary (params is empty)".into()));
         }
-        for p in &self.params {
+        for (k, p) in self.params.iter().enumerate() {
+            // Two parameters of one name would share a runs.csv column.
+            if self.params[..k].iter().any(|q| q.name == p.name) {
+                return Err(err(format!("parameter {:?} is given twice (params[{k}]); names must differ", p.name)));
+            }
             if p.values.is_empty() {
                 return Err(err(format!("parameter {:?} has no values (empty grid)", p.name)));
             }

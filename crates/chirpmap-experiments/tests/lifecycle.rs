@@ -223,6 +223,10 @@ fn run_counts_are_bounded_before_any_work() {
     let big = format!("name = \"{}\" x\n", "n".repeat(1_000_000));
     let e = SweepDef::from_toml_str(&big).unwrap_err().to_string();
     assert!(e.len() < 300, "{} chars", e.len());
+    // Two parameters of one name (they would share a runs.csv column).
+    let twice = SWEEP.replace("name = \"pattern\"", "name = \"n_obstacles\"");
+    let e = SweepDef::from_toml_str(&twice).unwrap().plan(|_| Ok(())).unwrap_err().to_string();
+    assert!(e.contains("\"n_obstacles\" is given twice (params[1])"), "{e}");
 }
 
 /// The repository's sweeps (definitions and recorded results) still plan
