@@ -32,7 +32,7 @@ fn run_doppler(args: &BenchArgs) -> Result<()> {
     if let Some(s) = args.speeds.iter().find(|s| !(s.is_finite() && **s > 0.0 && **s <= 30.0)) {
         bail!("--speeds: {s} m/s is outside (0, 30] (a listener of the doppler suite walks past the wall)");
     }
-    let mut out = Staged::dir(&args.out, &["doppler.csv", "doppler.md"], &[])?;
+    let mut out = Staged::dir(&args.out, "benchmark doppler", &["doppler.csv", "doppler.md"], &[])?;
     let started = Instant::now();
     let mut rows = Vec::new();
     for c in chirpmap_experiments::doppler::cases(&args.speeds) {
@@ -64,7 +64,7 @@ pub fn run(args: &BenchArgs) -> Result<()> {
     if args.suite != "maps" {
         bail!("unknown benchmark suite {:?} (suites: maps, doppler)", crate::args::excerpt(&args.suite));
     }
-    let mut out = Staged::dir(&args.out, &["maps.csv", "maps.md"], &[])?;
+    let mut out = Staged::dir(&args.out, "benchmark maps", &["maps.csv", "maps.md"], &[])?;
     let started = Instant::now();
     let mut cases: Vec<Case> = exact_cases().map_err(|e| anyhow!(e))?;
     cases.extend(particle_cases(args.runs).map_err(|e| anyhow!(e))?);

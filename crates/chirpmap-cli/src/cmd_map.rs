@@ -110,7 +110,7 @@ pub fn run(args: &MapArgs) -> Result<()> {
     }
     let inputs: Vec<&Path> =
         [&args.echoes, &args.wav, &args.poses, &args.scene].into_iter().flatten().map(PathBuf::as_path).collect();
-    let mut out = Staged::dir(&args.out, &outputs, &inputs)?;
+    let mut out = Staged::dir(&args.out, "map", &outputs, &inputs)?;
     let (echoes, rates, label) = match (&args.echoes, &args.wav) {
         (Some(p), _) => (read_echoes(p)?, Vec::new(), p.clone()),
         (None, Some(w)) => {

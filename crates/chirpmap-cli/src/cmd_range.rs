@@ -135,7 +135,7 @@ pub fn run(args: &RangeArgs) -> Result<()> {
         wall_normal: args.wall_normal.map(|[x, y]| Point::new(x, y)),
     };
     geom.validate()?;
-    let mut out = Staged::dir(&args.out, &outputs, &inputs)?;
+    let mut out = Staged::dir(&args.out, "range", &outputs, &inputs)?;
     let base = match &args.scene {
         Some(p) => ChirpSpec::from_scene(&load_scene(p)?.0),
         None => ChirpSpec::default(),
@@ -411,7 +411,7 @@ fn run_echoes(args: &RangeArgs) -> Result<()> {
         .flatten()
         .map(PathBuf::as_path)
         .collect();
-    let mut out = Staged::dir(&args.out, &outputs, &inputs)?;
+    let mut out = Staged::dir(&args.out, "range", &outputs, &inputs)?;
     let base = match &args.scene {
         Some(p) => ChirpSpec::from_scene(&load_scene(p)?.0),
         None => ChirpSpec::default(),

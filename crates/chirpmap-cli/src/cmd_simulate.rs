@@ -48,7 +48,7 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
         outputs.extend(["spectra.csv", "peaks.csv", fmt.spectrum()]);
     }
     let inputs: Vec<&Path> = args.scene.iter().map(PathBuf::as_path).collect();
-    let mut staged = Staged::dir(&args.out, &outputs, &inputs)?;
+    let mut staged = Staged::dir(&args.out, "simulate", &outputs, &inputs)?;
     if let Some(seed) = args.seed {
         scene.seed = seed;
     }

@@ -147,11 +147,23 @@ fn same_file(a: &Path, b: &Path) -> bool {
     matches!((a.canonicalize(), b.canonicalize()), (Ok(x), Ok(y)) if x == y)
 }
 
-/// A manifest: file name → identity when written (`None`: an older
-/// chirpmap's name-only line, trusted as ours).
+/// One line of a manifest.
+#[derive(Debug, Clone)]
+struct Entry {
+    /// File name in the directory.
+    name: String,
+    /// Identity when written (`None`: an older chirpmap's name-only line,
+    /// trusted as ours).
+    id: Option<Identity>,
+    /// The command that wrote it (`None`: an older chirpmap's line).
+    by: Option<String>,
+}
+
+/// A manifest: what chirpmap wrote in a directory, line by line
+/// `name<TAB>identity<TAB>command`.
 #[derive(Debug, Default, Clone)]
 struct Manifest {
-    entries: Vec<(String, Option<Identity>)>,
+    entries: Vec<Entry>,
 }
 
 impl Manifest {
@@ -163,20 +175,23 @@ impl Manifest {
             .lines()
             .filter(|l| !l.is_empty())
             .filter_map(|l| {
-                let (name, id) = match l.split_once('\t') {
-                    Some((n, id)) => (n, Some(Identity(id.to_string()))),
-                    None => (l, None),
-                };
+                let mut parts = l.splitn(3, '\t');
+                let name = parts.next()?;
+                let id = parts.next().map(|id| Identity(id.to_string()));
+                let by = parts.next().map(str::to_string);
                 // Only plain names in this directory, never paths.
-                (!name.contains('/') && !name.contains('\\') && name != "." && name != "..")
-                    .then(|| (name.to_string(), id))
+                (!name.contains('/') && !name.contains('\\') && name != "." && name != "..").then(|| Entry {
+                    name: name.to_string(),
+                    id,
+                    by,
+                })
             })
             .collect();
         Self { entries }
     }
 
-    fn get(&self, name: &str) -> Option<&Option<Identity>> {
-        self.entries.iter().find(|(n, _)| n == name).map(|(_, id)| id)
+    fn get(&self, name: &str) -> Option<&Entry> {
+        self.entries.iter().find(|e| e.name == name)
     }
 
     /// Whether `dir/name` is a file chirpmap wrote and nobody changed since.
@@ -188,22 +203,23 @@ impl Manifest {
             && self
                 .entries
                 .iter()
-                .filter(|(n, _)| n == name)
-                .any(|(_, id)| id.as_ref().is_none_or(|id| *id == Identity::of(&m)))
+                .filter(|e| e.name == name)
+                .any(|e| e.id.as_ref().is_none_or(|id| *id == Identity::of(&m)))
     }
 
-    /// Lists `name` with `id` only.
-    fn set(&mut self, name: &str, id: Identity) {
-        self.entries.retain(|(n, _)| n != name);
-        self.entries.push((name.to_string(), Some(id)));
+    /// Lists `name` with `id`, written by `by`, only.
+    fn set(&mut self, name: &str, id: Identity, by: &str) {
+        self.entries.retain(|e| e.name != name);
+        self.entries.push(Entry { name: name.to_string(), id: Some(id), by: Some(by.to_string()) });
     }
 
     fn text(&self) -> String {
         self.entries
             .iter()
-            .map(|(n, id)| match id {
-                Some(Identity(i)) => format!("{n}\t{i}\n"),
-                None => format!("{n}\n"),
+            .map(|e| match (&e.id, &e.by) {
+                (Some(Identity(i)), Some(by)) => format!("{}\t{i}\t{by}\n", e.name),
+                (Some(Identity(i)), None) => format!("{}\t{i}\n", e.name),
+                (None, _) => format!("{}\n", e.name),
             })
             .collect()
     }
@@ -253,6 +269,8 @@ pub struct Staged {
     outputs: Vec<(String, bool)>,
     inputs: Vec<PathBuf>,
     committed: bool,
+    /// The command writing (`simulate`, …), recorded in the manifest.
+    command: &'static str,
     /// Whether `dir` did not exist before, so a failure may remove it.
     created_dir: bool,
     /// The outermost directory this run created on the way to `dir`
@@ -264,11 +282,11 @@ impl Staged {
     /// An output directory that will hold `outputs` (names). Refuses, before
     /// any work, an `outputs` entry that would replace one of `inputs` or a
     /// file chirpmap did not write.
-    pub fn dir(dir: &Path, outputs: &[&str], inputs: &[&Path]) -> Result<Self> {
-        Self::new(dir, Mode::Dir, outputs, inputs)
+    pub fn dir(dir: &Path, command: &'static str, outputs: &[&str], inputs: &[&Path]) -> Result<Self> {
+        Self::new(dir, Mode::Dir, command, outputs, inputs)
     }
 
-    fn new(dir: &Path, mode: Mode, outputs: &[&str], inputs: &[&Path]) -> Result<Self> {
+    fn new(dir: &Path, mode: Mode, command: &'static str, outputs: &[&str], inputs: &[&Path]) -> Result<Self> {
         if dir.exists() && !dir.is_dir() {
             bail!("output {} exists and is not a directory", dir.display());
         }
@@ -339,6 +357,7 @@ impl Staged {
             outputs: outputs.iter().map(|n| (n.to_string(), false)).collect(),
             inputs: inputs.iter().map(|p| p.to_path_buf()).collect(),
             committed: false,
+            command,
             created_dir,
             created_top,
         })
@@ -386,14 +405,22 @@ impl Staged {
                 );
             }
         }
+        // In an output directory, a file of the last run that this one does not
+        // write is kept (and stays listed) when it is one of this run's inputs,
+        // or another command's (`map` into a `simulate` folder keeps its
+        // scene.toml, the only record of the random obstacles), or written by
+        // an older chirpmap that did not record the command. The rest of the
+        // same command's files are stale and removed below.
         let mut new = match self.mode {
             Mode::Files => old.clone(),
             Mode::Dir => {
                 let mut kept = Manifest::default();
-                for (name, id) in &old.entries {
-                    let p = self.dir.join(name);
-                    if !written.contains(name) && self.inputs.iter().any(|i| same_file(i, &p)) {
-                        kept.entries.push((name.clone(), id.clone()));
+                for e in &old.entries {
+                    let p = self.dir.join(&e.name);
+                    let input = self.inputs.iter().any(|i| same_file(i, &p));
+                    let others = e.by.as_deref() != Some(self.command) && old.owns(&self.dir, &e.name);
+                    if !written.contains(&e.name) && (input || others) {
+                        kept.entries.push(e.clone());
                     }
                 }
                 kept
@@ -404,8 +431,12 @@ impl Staged {
         for name in &written {
             let p = self.staging.join(name);
             let meta = std::fs::metadata(&p).with_context(|| format!("cannot read back {}", p.display()))?;
-            new.set(name, Identity::of(&meta));
-            both.entries.push((name.clone(), Some(Identity::of(&meta))));
+            new.set(name, Identity::of(&meta), self.command);
+            both.entries.push(Entry {
+                name: name.clone(),
+                id: Some(Identity::of(&meta)),
+                by: Some(self.command.into()),
+            });
         }
         let put_manifest = |m: &Manifest, staged_name: &str| -> Result<()> {
             let staged = self.staging.join(staged_name);
@@ -420,7 +451,7 @@ impl Staged {
             Mode::Dir => old
                 .entries
                 .iter()
-                .map(|(n, _)| n.clone())
+                .map(|e| e.name.clone())
                 .filter(|n| !written.contains(n) && new.get(n).is_none() && old.owns(&self.dir, n))
                 .collect(),
         };
@@ -430,7 +461,14 @@ impl Staged {
         }
         put_manifest(&new, "manifest")?;
         for name in stale {
-            std::fs::remove_file(self.dir.join(name)).ok();
+            let p = self.dir.join(&name);
+            if std::fs::remove_file(&p).is_ok() {
+                eprintln!(
+                    "note: removed {} (the previous `{}` run's output, not written by this one)",
+                    p.display(),
+                    self.command
+                );
+            }
         }
         std::fs::remove_dir_all(&self.staging).ok();
         self.committed = true;
@@ -485,7 +523,7 @@ impl StagedFiles {
             .iter()
             .map(|(d, names)| {
                 let names: Vec<&str> = names.iter().map(String::as_str).collect();
-                Staged::new(d, Mode::Files, &names, inputs)
+                Staged::new(d, Mode::Files, "synth", &names, inputs)
             })
             .collect::<Result<_>>()?;
         Ok(Self { groups, paths: index })
@@ -554,10 +592,10 @@ mod tests {
     fn refuses_to_overwrite_a_users_file_and_an_input() {
         let t = tempfile::tempdir().expect("tmp");
         std::fs::write(t.path().join("summary.json"), "mine").expect("write");
-        let err = Staged::dir(t.path(), &["summary.json"], &[]).expect_err("user's file");
+        let err = Staged::dir(t.path(), "test", &["summary.json"], &[]).expect_err("user's file");
         assert!(err.to_string().contains("not written by chirpmap"), "{err}");
         let input = t.path().join("summary.json");
-        let err = Staged::dir(t.path(), &["summary.json"], &[&input]).expect_err("input");
+        let err = Staged::dir(t.path(), "test", &["summary.json"], &[&input]).expect_err("input");
         assert!(err.to_string().contains("would replace the input"), "{err}");
         assert_eq!(std::fs::read_to_string(&input).expect("read"), "mine");
         assert_eq!(names(t.path()), vec!["summary.json"]);
@@ -566,13 +604,13 @@ mod tests {
     #[test]
     fn rerun_replaces_own_outputs_drops_stale_ones_but_keeps_inputs() {
         let t = tempfile::tempdir().expect("tmp");
-        let mut s = Staged::dir(t.path(), &["a.csv", "b.csv", "c.csv"], &[]).expect("new");
+        let mut s = Staged::dir(t.path(), "test", &["a.csv", "b.csv", "c.csv"], &[]).expect("new");
         for n in ["a.csv", "b.csv", "c.csv"] {
             s.write(n, "1").expect("write");
         }
         s.commit().expect("commit");
         let input = t.path().join("b.csv");
-        let mut s = Staged::dir(t.path(), &["a.csv"], &[&input]).expect("rerun");
+        let mut s = Staged::dir(t.path(), "test", &["a.csv"], &[&input]).expect("rerun");
         s.write("a.csv", "2").expect("write");
         s.commit().expect("commit");
         // c.csv was the last run's and is stale; b.csv is this run's input.
@@ -581,18 +619,41 @@ mod tests {
     }
 
     #[test]
+    fn another_commands_outputs_are_kept_and_stay_replaceable() {
+        let t = tempfile::tempdir().expect("tmp");
+        let run = |command: &'static str, names: &[&str]| {
+            let mut s = Staged::dir(t.path(), command, names, &[]).expect("new");
+            for n in names {
+                s.write(n, command).expect("write");
+            }
+            s.commit().expect("commit");
+        };
+        run("simulate", &["map.png", "scene.toml"]);
+        // `map` into a simulate folder: scene.toml is not its output, and stays.
+        run("map", &["map.png", "surfaces.csv"]);
+        assert_eq!(names(t.path()), vec![".chirpmap-outputs", "map.png", "scene.toml", "surfaces.csv"]);
+        assert_eq!(std::fs::read_to_string(t.path().join("scene.toml")).expect("kept"), "simulate");
+        // Still chirpmap's: the next simulate replaces it; surfaces.csv is map's and stays.
+        run("simulate", &["map.png", "scene.toml"]);
+        assert_eq!(names(t.path()), vec![".chirpmap-outputs", "map.png", "scene.toml", "surfaces.csv"]);
+        // The same command without one of its outputs drops it as stale.
+        run("map", &["map.png"]);
+        assert_eq!(names(t.path()), vec![".chirpmap-outputs", "map.png", "scene.toml"]);
+    }
+
+    #[test]
     fn a_changed_output_is_no_longer_ours() {
         let t = tempfile::tempdir().expect("tmp");
-        let mut s = Staged::dir(t.path(), &["a.csv", "b.csv"], &[]).expect("new");
+        let mut s = Staged::dir(t.path(), "test", &["a.csv", "b.csv"], &[]).expect("new");
         s.write("a.csv", "1").expect("write");
         s.write("b.csv", "1").expect("write");
         s.commit().expect("commit");
         std::fs::write(t.path().join("b.csv"), "edited by the user").expect("edit");
-        let mut s = Staged::dir(t.path(), &["a.csv"], &[]).expect("rerun");
+        let mut s = Staged::dir(t.path(), "test", &["a.csv"], &[]).expect("rerun");
         s.write("a.csv", "2").expect("write");
         s.commit().expect("commit");
         assert_eq!(std::fs::read_to_string(t.path().join("b.csv")).expect("kept"), "edited by the user");
-        assert!(Staged::dir(t.path(), &["b.csv"], &[]).is_err());
+        assert!(Staged::dir(t.path(), "test", &["b.csv"], &[]).is_err());
     }
 
     #[test]
@@ -600,14 +661,14 @@ mod tests {
         let t = tempfile::tempdir().expect("tmp");
         let out = t.path().join("new");
         {
-            let mut s = Staged::dir(&out, &["a.csv"], &[]).expect("new");
+            let mut s = Staged::dir(&out, "test", &["a.csv"], &[]).expect("new");
             s.write("a.csv", "1").expect("write");
         }
         assert!(!out.exists());
         // Every directory created on the way goes too, and nothing above.
         {
             let deep = t.path().join("n1/n2/n3");
-            let mut s = Staged::dir(&deep, &["a.csv"], &[]).expect("new");
+            let mut s = Staged::dir(&deep, "test", &["a.csv"], &[]).expect("new");
             s.write("a.csv", "1").expect("write");
         }
         assert!(!t.path().join("n1").exists() && t.path().exists());
@@ -630,7 +691,7 @@ mod tests {
     #[test]
     fn a_live_runs_staging_folder_is_never_removed() {
         let t = tempfile::tempdir().expect("tmp");
-        let mut first = Staged::dir(t.path(), &["a.csv"], &[]).expect("first");
+        let mut first = Staged::dir(t.path(), "test", &["a.csv"], &[]).expect("first");
         first.write("a.csv", "1").expect("write");
         // Another run starting meanwhile cleans debris: not the first's folder.
         let (tx, rx) = std::sync::mpsc::channel();
@@ -647,7 +708,7 @@ mod tests {
     #[test]
     fn a_commit_killed_between_renames_leaves_outputs_the_next_run_may_replace() {
         let t = tempfile::tempdir().expect("tmp");
-        let mut s = Staged::dir(t.path(), &["a.csv", "b.csv"], &[]).expect("new");
+        let mut s = Staged::dir(t.path(), "test", &["a.csv", "b.csv"], &[]).expect("new");
         s.write("a.csv", "old").expect("write");
         s.write("b.csv", "old").expect("write");
         s.commit().expect("commit");
@@ -656,11 +717,12 @@ mod tests {
         let staged = t.path().join("staged-a.csv");
         std::fs::write(&staged, "new").expect("new a");
         let mut both = Manifest::read(&t.path().join(DIR_MANIFEST));
-        both.entries.push(("a.csv".into(), Some(Identity::of(&std::fs::metadata(&staged).expect("meta")))));
+        let id = Some(Identity::of(&std::fs::metadata(&staged).expect("meta")));
+        both.entries.push(Entry { name: "a.csv".into(), id, by: Some("test".into()) });
         std::fs::write(t.path().join(DIR_MANIFEST), both.text()).expect("manifest");
         // Killed after the first of the renames.
         std::fs::rename(&staged, t.path().join("a.csv")).expect("rename");
-        let mut s = Staged::dir(t.path(), &["a.csv", "b.csv"], &[]).expect("the next run is not refused");
+        let mut s = Staged::dir(t.path(), "test", &["a.csv", "b.csv"], &[]).expect("the next run is not refused");
         s.write("a.csv", "2").expect("write");
         s.write("b.csv", "2").expect("write");
         s.commit().expect("commit");
