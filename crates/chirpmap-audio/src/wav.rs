@@ -442,7 +442,16 @@ impl WavStream {
         use std::io::{Read, Seek, SeekFrom};
         let io = |source| AudioError::Io { path: path.display().to_string(), source };
         let file = std::fs::File::open(path).map_err(io)?;
-        let file_len = file.metadata().map_err(io)?.len();
+        let meta = file.metadata().map_err(io)?;
+        // A pipe (`<(cat rec.wav)`, /dev/stdin) cannot be read a second time
+        // or sought in: say so, rather than fail later with "Illegal seek".
+        if !meta.is_file() {
+            return Err(io(std::io::Error::other(
+                "not a regular file: the recording is read in blocks and parts of it again, which needs a file \
+                 (a pipe or /dev/stdin cannot be sought in); save it to a file first",
+            )));
+        }
+        let file_len = meta.len();
         let mut reader = std::io::BufReader::with_capacity(1 << 20, file);
         // Reads up to `n` bytes at the current position (fewer at the end of the file).
         let take = |r: &mut std::io::BufReader<std::fs::File>, n: usize| -> Result<Vec<u8>, AudioError> {

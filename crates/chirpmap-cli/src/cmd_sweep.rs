@@ -90,7 +90,7 @@ pub fn run_sweep_cmd(args: &SweepArgs, no_progress: bool) -> Result<()> {
     if let Some(r) = args.runs {
         def.runs = r;
     }
-    let plan = plan(&def)?;
+    let plan = plan(&def).map_err(|e| anyhow!("{}: {e}", args.sweep))?;
     let shard = args.shard.unwrap_or(Shard::ALL);
     // At most MAX_THREADS (the parser's range), so the conversion cannot fail.
     let threads = args.threads.map_or_else(

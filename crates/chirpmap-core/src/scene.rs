@@ -356,6 +356,10 @@ pub const MIN_SPEED_OF_SOUND_MPS: f64 = 100.0;
 pub const MAX_SPEED_OF_SOUND_MPS: f64 = 2000.0;
 /// Longest chirp (s); the paper's is 0.5 s.
 pub const MAX_CHIRP_S: f64 = 60.0;
+/// Shortest chirp: 0.1 ms, below the shortest bat calls (about 0.3 ms). A
+/// far shorter sweep overlaps no reflection, so nothing is measured
+/// (`chirp.duration = 1e-320` ran to 0 echoes and exit 0).
+pub const MIN_CHIRP_S: f64 = 1e-4;
 /// Highest chirp frequency (Hz): far above any recorder (AudioMoth: 384 kHz).
 pub const MAX_FREQ_HZ: f64 = 1e6;
 /// Particles per tick: the direction table holds one 16-byte entry each
@@ -492,8 +496,11 @@ impl Scene {
         let world = self.world.bounds;
         check_rect("world.bounds", &world)?;
         let chirp = self.chirp.build()?;
-        if chirp.duration_s() > MAX_CHIRP_S {
-            return bad(format!("chirp.duration must be at most {MAX_CHIRP_S} s, got {}", Num(chirp.duration_s())));
+        if !(MIN_CHIRP_S..=MAX_CHIRP_S).contains(&chirp.duration_s()) {
+            return bad(format!(
+                "chirp.duration must be within {MIN_CHIRP_S}–{MAX_CHIRP_S} s, got {}",
+                Num(chirp.duration_s())
+            ));
         }
         if self.chirp.f_start.max(self.chirp.f_end) > MAX_FREQ_HZ {
             return bad(format!(
@@ -729,7 +736,9 @@ mod tests {
             ("[source]\nposition = [nan, 0.0]\n", "source.position (NaN, 0) is not inside"),
             ("[world]\nbounds = [-1e300, -50.0, 50.0, 50.0]\n", "within ±1000000 m"),
             ("[[obstacles]]\ncenter = [1e300, 0.0]\nradius = 1.0\n", "obstacles[0]"),
-            ("[chirp]\nduration = 1e5\n", "chirp.duration must be at most 60 s"),
+            ("[chirp]\nduration = 1e5\n", "chirp.duration must be within 0.0001–60 s, got 100000"),
+            ("[chirp]\nduration = 1e-320\n", "chirp.duration must be within 0.0001–60 s, got 9.99989e-321"),
+            ("[chirp]\nduration = 0.00005\n", "chirp.duration must be within 0.0001–60 s, got 5e-5"),
             ("seed = 18446744073709551615\n", "seed"),
         ];
         for (toml, want) in cases {
