@@ -17,7 +17,7 @@ pub const MAX_CSV_BYTES: u64 = 1 << 30;
 pub fn read_input(path: &Path, what: &str, cap: u64) -> Result<Vec<u8>> {
     use std::io::Read;
     let file = std::fs::File::open(path).with_context(|| format!("cannot read {what} {}", path.display()))?;
-    let refuse = |len: String| anyhow!("{what} {} is {len}, more than a {what} may be ({} bytes)", path.display(), cap);
+    let refuse = |size: String| anyhow!("{what} {} is too large: {size} (the limit is {cap} bytes)", path.display());
     if let Ok(m) = file.metadata()
         && m.is_file()
         && m.len() > cap
@@ -27,7 +27,7 @@ pub fn read_input(path: &Path, what: &str, cap: u64) -> Result<Vec<u8>> {
     let mut bytes = Vec::new();
     file.take(cap + 1).read_to_end(&mut bytes).with_context(|| format!("cannot read {what} {}", path.display()))?;
     if bytes.len() as u64 > cap {
-        return Err(refuse("longer".to_string()));
+        return Err(refuse(format!("more than {cap} bytes")));
     }
     Ok(bytes)
 }
@@ -50,10 +50,10 @@ mod tests {
         std::fs::write(&p, "0123456789").expect("write");
         assert_eq!(read_input(&p, "scene", 10).expect("fits"), b"0123456789");
         let e = read_input(&p, "scene", 9).expect_err("too large").to_string();
-        assert!(e.contains("s.toml is 10 bytes, more than a scene may be (9 bytes)"), "{e}");
+        assert!(e.contains("scene") && e.contains("s.toml is too large: 10 bytes (the limit is 9 bytes)"), "{e}");
         if cfg!(target_os = "linux") {
             let e = read_input(Path::new("/dev/zero"), "echoes file", 1000).expect_err("endless").to_string();
-            assert!(e.contains("/dev/zero is longer"), "{e}");
+            assert!(e.contains("/dev/zero is too large: more than 1000 bytes"), "{e}");
         }
         std::fs::write(&p, [b'a', 0xff, b'b']).expect("write");
         let e = read_text_input(&p, "scene", 10).expect_err("not UTF-8").to_string();

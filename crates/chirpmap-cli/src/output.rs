@@ -89,7 +89,7 @@ fn live() -> std::sync::MutexGuard<'static, Vec<Live>> {
 pub fn abandon_all() -> impl Sized {
     let mut live = live();
     for (staging, created) in live.drain(..) {
-        std::fs::remove_dir_all(&staging).ok();
+        remove_staging(&staging);
         if let Some((dir, top)) = created {
             remove_created(&dir, top.as_deref());
         }
@@ -97,15 +97,12 @@ pub fn abandon_all() -> impl Sized {
     live
 }
 
-/// Removes the output directory a run created, if nothing but a
-/// [`DIR_LOCK`] is in it (another run may have written there since), then
-/// the empty directories it created on the way, up to `top`.
+/// Removes the output directory a run created if it is empty (another run
+/// may have written there since), then the empty directories it created on
+/// the way, up to `top`. A [`DIR_LOCK`] file (file systems that cannot lock a
+/// directory) is never unlinked: a run waiting on it would then hold a lock
+/// on a file another run no longer sees; the directory stays with it.
 fn remove_created(dir: &Path, top: Option<&Path>) {
-    let only_the_lock = std::fs::read_dir(dir).is_ok_and(|mut e| e.all(|e| e.is_ok_and(|e| e.file_name() == DIR_LOCK)));
-    if !only_the_lock {
-        return;
-    }
-    std::fs::remove_file(dir.join(DIR_LOCK)).ok();
     for d in dir.ancestors() {
         // `remove_dir` removes only empty directories.
         if std::fs::remove_dir(d).is_err() || top.is_none_or(|t| d == t) {
@@ -237,16 +234,38 @@ fn clean_debris(dir: &Path) {
     let Ok(entries) = std::fs::read_dir(dir) else { return };
     for entry in entries.flatten() {
         let name = entry.file_name().to_string_lossy().into_owned();
-        let Some(pid) = name.strip_prefix(STAGING_PREFIX) else { continue };
-        if pid.is_empty() || !pid.bytes().all(|b| b.is_ascii_digit()) {
+        let Some(id) = name.strip_prefix(STAGING_PREFIX) else { continue };
+        // `PID-N` (`PID` of older chirpmaps).
+        let digits = |s: &str| !s.is_empty() && s.bytes().all(|b| b.is_ascii_digit());
+        if !id.split_once('-').map_or(digits(id), |(a, b)| digits(a) && digits(b)) {
             continue;
         }
         let path = entry.path();
         let abandoned = File::open(path.join(LOCK_FILE)).is_ok_and(|f| f.try_lock().is_ok());
         if abandoned {
-            std::fs::remove_dir_all(&path).ok();
+            remove_staging(&path);
         }
     }
+}
+
+/// Removes a staging folder: its outputs first, its lock file last, so a
+/// removal cut short (a kill, a file appearing meanwhile) leaves a folder
+/// that still reads as debris, never one without its lock.
+fn remove_staging(staging: &Path) {
+    if let Ok(entries) = std::fs::read_dir(staging) {
+        for e in entries.flatten() {
+            if e.file_name() != LOCK_FILE {
+                let p = e.path();
+                if p.is_dir() {
+                    std::fs::remove_dir_all(&p).ok()
+                } else {
+                    std::fs::remove_file(&p).ok()
+                };
+            }
+        }
+    }
+    std::fs::remove_file(staging.join(LOCK_FILE)).ok();
+    std::fs::remove_dir(staging).ok();
 }
 
 /// Where outputs go: a directory that is the run's (stale outputs of the
@@ -299,13 +318,25 @@ impl Staged {
         let created_dir = !dir.exists();
         let created_top =
             dir.ancestors().take_while(|a| !a.as_os_str().is_empty() && !a.exists()).last().map(Path::to_path_buf);
-        std::fs::create_dir_all(dir).with_context(|| format!("cannot create output directory {}", dir.display()))?;
+        // Unique within the process too (two output groups, or two commands of
+        // one process, in one directory spelled two ways), and registered
+        // before anything is created, so an interruption from now on removes
+        // what this run made.
+        static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+        let serial = NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let staging = dir.join(format!("{STAGING_PREFIX}{}-{serial}", std::process::id()));
+        live().push((staging.clone(), created_dir.then(|| (dir.to_path_buf(), created_top.clone()))));
         let refuse = |e: anyhow::Error| {
+            live().retain(|(s, _)| *s != staging);
+            remove_staging(&staging);
             if created_dir {
                 remove_created(dir, created_top.as_deref());
             }
             Err(e)
         };
+        if let Err(e) = std::fs::create_dir_all(dir) {
+            return refuse(anyhow::Error::new(e).context(format!("cannot create output directory {}", dir.display())));
+        }
         let guard = match DirLock::take(dir) {
             Ok(g) => g,
             Err(e) => return refuse(e),
@@ -329,21 +360,20 @@ impl Staged {
                 ));
             }
         }
-        let staging = dir.join(format!("{STAGING_PREFIX}{}", std::process::id()));
-        // Registered before it exists, so an interruption from now on removes it.
-        live().push((staging.clone(), created_dir.then(|| (dir.to_path_buf(), created_top.clone()))));
-        let lock = std::fs::create_dir_all(&staging)
+        // A new folder (`create_dir`, not `_all`): the name is this run's alone.
+        // Its lock is taken without waiting: nothing may block while the
+        // directory is locked.
+        let lock = std::fs::create_dir(&staging)
             .with_context(|| format!("cannot write into {}", dir.display()))
             .and_then(|()| {
-                File::create(staging.join(LOCK_FILE))
-                    .and_then(|f| f.lock().map(|()| f))
-                    .with_context(|| format!("cannot create {}", staging.display()))
+                let f = File::create(staging.join(LOCK_FILE))
+                    .with_context(|| format!("cannot create {}", staging.display()))?;
+                f.try_lock().map_err(|e| anyhow::anyhow!("cannot lock {}: {e}", staging.join(LOCK_FILE).display()))?;
+                Ok(f)
             });
         let lock = match lock {
             Ok(l) => l,
             Err(e) => {
-                live().retain(|(s, _)| *s != staging);
-                std::fs::remove_dir_all(&staging).ok();
                 drop(guard);
                 return refuse(e);
             }
@@ -388,8 +418,9 @@ impl Staged {
     /// leaves outputs the next run may replace (not a directory it refuses).
     pub fn commit(mut self) -> Result<PathBuf> {
         let _guard = DirLock::take(&self.dir)?;
+        // Held to the end, so an interruption waits for the commit; the entry
+        // leaves the registry only once the outputs are in place.
         let mut live = live();
-        live.retain(|(s, _)| *s != self.staging);
         let manifest_path = self.dir.join(manifest_name(self.mode));
         let old = Manifest::read(&manifest_path);
         let written: Vec<String> = self.outputs.iter().filter(|o| o.1).map(|o| o.0.clone()).collect();
@@ -458,6 +489,10 @@ impl Staged {
         for name in &written {
             let (from, to) = (self.staging.join(name), self.dir.join(name));
             std::fs::rename(&from, &to).with_context(|| format!("cannot move {} into place", to.display()))?;
+            #[cfg(test)]
+            if STOP_AFTER_FIRST_RENAME.with(std::cell::Cell::get) {
+                bail!("stopped after moving {name} into place (test)");
+            }
         }
         put_manifest(&new, "manifest")?;
         for name in stale {
@@ -470,11 +505,19 @@ impl Staged {
                 );
             }
         }
-        std::fs::remove_dir_all(&self.staging).ok();
+        remove_staging(&self.staging);
         self.committed = true;
+        live.retain(|(s, _)| *s != self.staging);
         drop(live);
         Ok(self.dir.clone())
     }
+}
+
+#[cfg(test)]
+thread_local! {
+    /// Makes [`Staged::commit`] stop after its first rename, as a kill there
+    /// would (test only; per thread, so parallel tests are not affected).
+    static STOP_AFTER_FIRST_RENAME: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
 }
 
 /// Single output files (e.g. `synth --out X.wav --poses P.csv`), checked
@@ -564,7 +607,7 @@ impl Drop for Staged {
     fn drop(&mut self) {
         if !self.committed {
             live().retain(|(s, _)| *s != self.staging);
-            std::fs::remove_dir_all(&self.staging).ok();
+            remove_staging(&self.staging);
             // Leave no empty directory behind that we created.
             // (Its lock file too, unless another run has written there since.)
             if self.created_dir {
@@ -712,16 +755,16 @@ mod tests {
         s.write("a.csv", "old").expect("write");
         s.write("b.csv", "old").expect("write");
         s.commit().expect("commit");
-        // What a commit writes before its first rename: the manifest in place
-        // lists both the files there and the run's new ones.
-        let staged = t.path().join("staged-a.csv");
-        std::fs::write(&staged, "new").expect("new a");
-        let mut both = Manifest::read(&t.path().join(DIR_MANIFEST));
-        let id = Some(Identity::of(&std::fs::metadata(&staged).expect("meta")));
-        both.entries.push(Entry { name: "a.csv".into(), id, by: Some("test".into()) });
-        std::fs::write(t.path().join(DIR_MANIFEST), both.text()).expect("manifest");
-        // Killed after the first of the renames.
-        std::fs::rename(&staged, t.path().join("a.csv")).expect("rename");
+        // A commit stopped after its first rename (as a kill would stop it).
+        let mut s = Staged::dir(t.path(), "test", &["a.csv", "b.csv"], &[]).expect("new");
+        s.write("a.csv", "new").expect("write");
+        s.write("b.csv", "new").expect("write");
+        STOP_AFTER_FIRST_RENAME.with(|c| c.set(true));
+        let stopped = s.commit();
+        STOP_AFTER_FIRST_RENAME.with(|c| c.set(false));
+        assert!(stopped.is_err());
+        assert_eq!(std::fs::read_to_string(t.path().join("a.csv")).expect("a"), "new");
+        assert_eq!(std::fs::read_to_string(t.path().join("b.csv")).expect("b"), "old");
         let mut s = Staged::dir(t.path(), "test", &["a.csv", "b.csv"], &[]).expect("the next run is not refused");
         s.write("a.csv", "2").expect("write");
         s.write("b.csv", "2").expect("write");

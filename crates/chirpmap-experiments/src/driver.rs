@@ -61,7 +61,7 @@ pub fn run_sweep(
         progress(resumed + executed, total);
         Ok(())
     })?;
-    let rows = file.finish(plan)?;
+    let (rows, _still_ours) = file.finish(plan)?;
     let summaries = write_summaries(dir, plan, &rows)?;
     Ok(Outcome { rows, resumed, executed, summaries })
 }

@@ -260,14 +260,57 @@ pub struct RunsFile {
     file: std::fs::File,
     /// Rows already in the file, keyed by job (the runs a resume skips).
     pub done: BTreeMap<Job, RunRow>,
-    /// Locked for as long as this sweep writes into the directory.
-    _lock: std::fs::File,
+    /// Held for as long as this sweep writes into the directory.
+    lock: SweepLock,
 }
 
-/// Locked by the sweep writing into a directory: a second sweep started
-/// into it (two terminals, a Slurm task resubmitted while the first still
-/// runs) is refused, where it used to run every job again beside the first
-/// and leave runs.csv with each row twice.
+/// A sweep's exclusive hold on its directory, released when dropped: the
+/// directory itself is locked (`flock` on its descriptor, so nothing is
+/// written into a directory that is then refused); where the file system
+/// cannot lock a directory (NFS), a [`SWEEP_LOCK_FILE`] in it.
+#[derive(Debug)]
+pub struct SweepLock {
+    _file: std::fs::File,
+}
+
+impl SweepLock {
+    /// Takes the lock without waiting; a directory another sweep holds is an error.
+    pub fn take(dir: &Path) -> Result<Self, ExperimentError> {
+        let busy = |at: &Path| {
+            ExperimentError::file(
+                at,
+                "is locked: another chirpmap sweep is writing into this directory; wait for it to finish \
+                 (then rerun to resume) or use another --out",
+            )
+        };
+        if let Ok(file) = std::fs::File::open(dir) {
+            match file.try_lock() {
+                Ok(()) => return Ok(Self { _file: file }),
+                Err(std::fs::TryLockError::WouldBlock) => return Err(busy(dir)),
+                Err(std::fs::TryLockError::Error(_)) => {}
+            }
+        }
+        let path = dir.join(SWEEP_LOCK_FILE);
+        let file = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(false)
+            .open(&path)
+            .map_err(|e| ExperimentError::io(&path, e))?;
+        match file.try_lock() {
+            Ok(()) => Ok(Self { _file: file }),
+            Err(std::fs::TryLockError::WouldBlock) => Err(busy(&path)),
+            Err(std::fs::TryLockError::Error(e)) => Err(ExperimentError::io(&path, e)),
+        }
+    }
+}
+
+/// Locked by the sweep writing into a directory where the directory itself
+/// cannot be locked ([`SweepLock`]): a second sweep started into it (two
+/// terminals, a Slurm task resubmitted while the first still runs) is
+/// refused, where it used to run every job again beside the first and leave
+/// runs.csv with each row twice.
 pub const SWEEP_LOCK_FILE: &str = ".chirpmap-sweep-lock";
 
 /// Name of the sweep definition copied into an output directory.
@@ -285,6 +328,9 @@ impl RunsFile {
             return Err(ExperimentError::file(dir, "is a file; --out must be a directory (new or a sweep's own)"));
         }
         std::fs::create_dir_all(dir).map_err(|e| ExperimentError::io(dir, e))?;
+        // Before anything is read or written: two sweeps started together
+        // into a new directory must not both take it for theirs.
+        let lock = SweepLock::take(dir)?;
         let sweep_path = dir.join(SWEEP_FILE);
         let shard_path = dir.join(SHARD_FILE);
         let path = dir.join(RUNS_FILE);
@@ -318,27 +364,6 @@ impl RunsFile {
                 }
                 std::fs::write(&sweep_path, &sweep_text).map_err(|e| ExperimentError::io(&sweep_path, e))?;
             }
-        }
-        // Taken once the directory is known to be this sweep's (a refused
-        // directory gets nothing written into it).
-        let lock_path = dir.join(SWEEP_LOCK_FILE);
-        let lock = std::fs::OpenOptions::new()
-            .read(true)
-            .write(true)
-            .create(true)
-            .truncate(false)
-            .open(&lock_path)
-            .map_err(|e| ExperimentError::io(&lock_path, e))?;
-        match lock.try_lock() {
-            Ok(()) => {}
-            Err(std::fs::TryLockError::WouldBlock) => {
-                return Err(ExperimentError::file(
-                    &lock_path,
-                    "is locked: another chirpmap sweep is writing into this directory; wait for it to finish \
-                     (then rerun to resume) or use another --out",
-                ));
-            }
-            Err(std::fs::TryLockError::Error(e)) => return Err(ExperimentError::io(&lock_path, e)),
         }
         match std::fs::read_to_string(&shard_path) {
             Ok(existing) if existing != shard_text => {
@@ -397,7 +422,7 @@ impl RunsFile {
         if file.seek(std::io::SeekFrom::End(0)).map_err(|e| ExperimentError::io(&path, e))? == 0 {
             file.write_all(&csv_line(&header(plan))).map_err(|e| ExperimentError::io(&path, e))?;
         }
-        Ok(Self { path, plan: plan.clone(), file, done, _lock: lock })
+        Ok(Self { path, plan: plan.clone(), file, done, lock })
     }
 
     /// Appends one finished run as a whole line and flushes it.
@@ -413,10 +438,12 @@ impl RunsFile {
     }
 
     /// Rewrites runs.csv sorted, so finished outputs compare row for row.
-    pub fn finish(self, plan: &Plan) -> Result<Vec<RunRow>, ExperimentError> {
+    /// Also returns the directory's lock, for the caller to hold while it
+    /// writes the summaries.
+    pub fn finish(self, plan: &Plan) -> Result<(Vec<RunRow>, SweepLock), ExperimentError> {
         let rows: Vec<RunRow> = self.done.into_values().collect();
         drop(self.file);
         write_sorted(&self.path, plan, &rows)?;
-        Ok(rows)
+        Ok((rows, self.lock))
     }
 }
