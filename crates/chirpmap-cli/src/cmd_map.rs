@@ -12,6 +12,7 @@ use anyhow::{Context, Result, anyhow, bail};
 use chirpmap::audio::doppler::{MovingOptions, WavMethod};
 use chirpmap::audio::synth::ChirpPattern;
 use chirpmap::{ChirpSpec, Echo, MapOptions, MappingParams, Obstacle, Point};
+use chirpmap_core::error::Num;
 use clap::Args;
 use serde_json::json;
 use std::path::{Path, PathBuf};
@@ -161,6 +162,16 @@ pub fn run(args: &MapArgs) -> Result<()> {
     summary["elapsed_s"] = json!(started.elapsed().as_secs_f64());
     out.write("summary.json", serde_json::to_string_pretty(&summary)? + "\n")?;
     let dir = out.commit()?;
+    if map.grid.data.iter().all(|v| *v == 0.0) {
+        let s = map.grid.spec;
+        eprintln!(
+            "warning: the map is empty: no echo's ellipse reaches the mapped area x {}..{}, y {}..{} m; check --bounds",
+            Num(s.x_min_m),
+            Num(s.x_max_m()),
+            Num(s.y_min_m),
+            Num(s.y_max_m())
+        );
+    }
     say!(
         "{} echoes -> {} highlights, {} surfaces in {:.3} s; wrote {}",
         echoes.len(),

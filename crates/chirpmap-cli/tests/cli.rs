@@ -410,3 +410,27 @@ fn evidence_mapper_writes_surfaces_grid_data_and_metrics() {
     assert!(std::fs::read_to_string(out.join("map.svg")).unwrap().contains("<svg"));
     assert!(!out.join("map.png").exists());
 }
+
+/// `--bounds` that no ellipse reaches: the run succeeds (the map is what was
+/// asked for) but says the map is empty, instead of a silent blank map.
+#[test]
+fn an_empty_map_is_reported() {
+    let tmp = tempfile::tempdir().unwrap();
+    let echoes = repo().join("examples/three-circles/echoes.csv");
+    let out = tmp.path().join("far");
+    let o = run(&[
+        "map",
+        "--echoes",
+        echoes.to_str().unwrap(),
+        "--bounds",
+        "500,500,510,510",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("warning: the map is empty") && err.contains("x 500..510, y 500..510 m"), "{err}");
+    let out = tmp.path().join("near");
+    let o = run(&["map", "--echoes", echoes.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    assert!(o.status.success() && !String::from_utf8_lossy(&o.stderr).contains("empty"));
+}

@@ -158,8 +158,18 @@ pub fn load_scene(src: SceneSource<'_>) -> Result<(Scene, SynthConfig, String), 
             Ok((s, c, "scene dict".into()))
         }
         SceneSource::Path(path) => {
-            let text =
-                std::fs::read_to_string(path).map_err(|e| format!("cannot read scene {path}: {}", error_text(&e)))?;
+            // Capped as the CLI caps it: an endless stream (`/dev/zero`) or a
+            // huge file is refused instead of read until memory runs out.
+            const MAX_SCENE_BYTES: u64 = 64 << 20;
+            let mut text = String::new();
+            std::fs::File::open(path)
+                .and_then(|f| {
+                    std::io::Read::read_to_string(&mut std::io::Read::take(f, MAX_SCENE_BYTES + 1), &mut text)
+                })
+                .map_err(|e| format!("cannot read scene {path}: {}", error_text(&e)))?;
+            if text.len() as u64 > MAX_SCENE_BYTES {
+                return Err(format!("scene {path} is too large: more than {MAX_SCENE_BYTES} bytes (the limit)"));
+            }
             let (s, c) = chirpmap::parse_scene(&text).map_err(|e| format!("{path}: {}", error_text(&e)))?;
             Ok((s, c, path.to_string()))
         }

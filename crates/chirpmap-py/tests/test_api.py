@@ -4,6 +4,8 @@ releases the GIL."""
 
 from __future__ import annotations
 
+import os
+import pathlib
 import time
 
 import numpy as np
@@ -68,6 +70,10 @@ def test_bad_scenes_raise_value_error(tmp_path):
     bad.write_text("seed = \n")
     with pytest.raises(ValueError, match=f"^{bad}: "):
         chirpmap.simulate(bad)
+    # An endless stream is read up to the cap, not until memory runs out.
+    if os.path.exists("/dev/zero"):
+        with pytest.raises(ValueError, match=r"scene /dev/zero is too large"):
+            chirpmap.simulate(pathlib.Path("/dev/zero"))
     with pytest.raises(ValueError, match="seed: must be between 0 and 2"):
         chirpmap.simulate(seed=-1)
     with pytest.raises(ValueError, match="scene dict"):
