@@ -103,7 +103,21 @@ pub fn run(args: &MapArgs) -> Result<()> {
         mapper: args.mapper.unwrap_or(base.mapper),
         ..base
     };
-    params.validate()?;
+    params.validate().map_err(|e| match e {
+        // Name the flag when the value came from one (else the scene's [mapping]).
+        chirpmap_core::CoreError::InvalidParam { field, reason }
+            if [
+                ("cell", args.cell.is_some()),
+                ("keep_top", args.keep_top.is_some()),
+                ("min_of_max", args.min_of_max.is_some()),
+                ("peak_radius", args.peak_radius.is_some()),
+            ]
+            .contains(&(field, true)) =>
+        {
+            anyhow!("--{}: {reason}", field.replace('_', "-"))
+        }
+        e => e.into(),
+    })?;
     let mut outputs = map_outputs(params.mapper, args.plot_format);
     outputs.push("summary.json");
     if args.wav.is_some() {

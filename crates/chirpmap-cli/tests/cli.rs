@@ -433,4 +433,20 @@ fn an_empty_map_is_reported() {
     let out = tmp.path().join("near");
     let o = run(&["map", "--echoes", echoes.to_str().unwrap(), "--out", out.to_str().unwrap()]);
     assert!(o.status.success() && !String::from_utf8_lossy(&o.stderr).contains("empty"));
+    // A bad mapping flag is named as typed.
+    for (flag, value, want) in
+        [("--keep-top", "2", "--keep-top: must be in (0, 1]"), ("--cell", "-1", "--cell: must be")]
+    {
+        let bad = tmp.path().join(format!("bad{flag}"));
+        let o = run(&[
+            "map",
+            "--echoes",
+            echoes.to_str().unwrap(),
+            &format!("{flag}={value}"),
+            "--out",
+            bad.to_str().unwrap(),
+        ]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success() && err.contains(want), "{flag}: {err}");
+    }
 }

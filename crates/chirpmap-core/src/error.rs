@@ -127,8 +127,10 @@ pub fn excerpt(line: &str, col: usize) -> String {
     s
 }
 
-/// Longest error message kept from a parser (characters).
-const MESSAGE_CHARS: usize = 300;
+/// Longest error message kept from a parser (characters): room for the list
+/// of every key of `[mapping.evidence]` that an unknown key's message gives
+/// (it was cut after the second key), while each quoted part is an excerpt.
+const MESSAGE_CHARS: usize = 800;
 
 /// The first line of a parser's message, with every `` `quoted` `` part (a
 /// key or value from the input, possibly megabytes long) cut to an excerpt,
@@ -141,7 +143,11 @@ pub fn short_message(message: &str) -> String {
         .map(|(k, part)| if k % 2 == 1 { excerpt(part, 0) } else { part.to_string() })
         .collect();
     let joined = parts.join("`");
-    if joined.chars().count() > MESSAGE_CHARS { excerpt(&joined, 0) } else { joined }
+    if joined.chars().count() > MESSAGE_CHARS {
+        joined.chars().take(MESSAGE_CHARS).chain(['…']).collect()
+    } else {
+        joined
+    }
 }
 
 /// A one-line description of a TOML error in `text`: `line L, column C: what

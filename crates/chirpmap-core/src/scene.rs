@@ -736,6 +736,8 @@ mod tests {
             ("[source]\nposition = [nan, 0.0]\n", "source.position (NaN, 0) is not inside"),
             ("[world]\nbounds = [-1e300, -50.0, 50.0, 50.0]\n", "within ±1000000 m"),
             ("[[obstacles]]\ncenter = [1e300, 0.0]\nradius = 1.0\n", "obstacles[0]"),
+            // Every valid key is listed (the message was cut after the second).
+            ("[mapping.evidence]\nfoo = 1\n", "`highlight_min_logodds`, `max_surfaces`"),
             ("[chirp]\nduration = 1e5\n", "chirp.duration must be within 0.0001–60 s, got 100000"),
             ("[chirp]\nduration = 1e-320\n", "chirp.duration must be within 0.0001–60 s, got 9.99989e-321"),
             ("[chirp]\nduration = 0.00005\n", "chirp.duration must be within 0.0001–60 s, got 5e-5"),
