@@ -196,9 +196,22 @@ pub fn parse_scene_with_synth(text: &str) -> Result<(Scene, SynthConfig), AudioE
     let invalid = |m: String| AudioError::InvalidParam { field: "scene", reason: m };
     let mut table: toml::Table =
         text.parse().map_err(|e: toml::de::Error| invalid(chirpmap_core::error::toml_error(text, &e)))?;
-    let (scene, cfg) = match table.remove("synth") {
-        None => (Scene::from_toml_str(text)?, SynthConfig::default()),
-        Some(synth) => {
+    let split = if table.contains_key("synth") { split_synth_lines(text) } else { None };
+    let (scene, cfg) = match (table.remove("synth"), split) {
+        (None, _) => (Scene::from_toml_str(text)?, SynthConfig::default()),
+        (Some(_), Some((scene_text, synth_text))) => {
+            /// The `[synth]` table alone, with the file's line numbers.
+            #[derive(Deserialize)]
+            #[serde(deny_unknown_fields)]
+            struct SynthOnly {
+                #[serde(default)]
+                synth: SynthConfig,
+            }
+            let synth: SynthOnly =
+                toml::from_str(&synth_text).map_err(|e| invalid(chirpmap_core::error::toml_error(&synth_text, &e)))?;
+            (Scene::from_toml_str(&scene_text)?, synth.synth)
+        }
+        (Some(synth), None) => {
             let cfg: SynthConfig = synth.try_into().map_err(|e: toml::de::Error| {
                 invalid(format!("[synth]: {}", chirpmap_core::error::short_message(e.message())))
             })?;
@@ -209,6 +222,41 @@ pub fn parse_scene_with_synth(text: &str) -> Result<(Scene, SynthConfig), AudioE
     scene.validate()?;
     cfg.validate()?;
     Ok((scene, cfg))
+}
+
+/// Splits a scene file into its `[synth]` table (headers `[synth]` and
+/// `[synth.*]` up to the next other header) and the rest, each with the
+/// other's lines left empty, so errors in either name the file's own line
+/// numbers (the scene used to be parsed from a re-serialised copy, whose
+/// line numbers were not the file's). `None` when the table is not written
+/// under its own header (an inline `synth = { … }`), or a multi-line string
+/// could hide a header.
+fn split_synth_lines(text: &str) -> Option<(String, String)> {
+    if text.contains("\"\"\"") || text.contains("'''") {
+        return None;
+    }
+    let (mut scene, mut synth) = (String::with_capacity(text.len()), String::new());
+    let mut in_synth = false;
+    let mut found = false;
+    for line in text.split_inclusive('\n') {
+        let t = line.trim_start();
+        if t.starts_with('[') {
+            let name = t.trim_start_matches('[').split(']').next().unwrap_or("").trim();
+            in_synth = !t.starts_with("[[") && (name == "synth" || name.starts_with("synth."));
+            found |= in_synth;
+        }
+        let end = if line.ends_with("\r\n") {
+            "\r\n"
+        } else if line.ends_with('\n') {
+            "\n"
+        } else {
+            ""
+        };
+        let (mine, other) = if in_synth { (&mut synth, &mut scene) } else { (&mut scene, &mut synth) };
+        mine.push_str(line);
+        other.push_str(end);
+    }
+    found.then_some((scene, synth))
 }
 
 /// Bytes [`synthesize`] will hold at its peak for `scene` and `cfg`: one
