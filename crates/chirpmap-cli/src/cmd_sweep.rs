@@ -27,8 +27,8 @@ pub struct SweepArgs {
     #[arg(long)]
     pub runs: Option<u64>,
     /// Worker threads (default: all cores), 1 to 1024. Results do not depend on it.
-    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=MAX_THREADS))]
-    pub threads: Option<u64>,
+    #[arg(long, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=MAX_THREADS))]
+    pub threads: Option<usize>,
     /// Run only shard I of N (0-based), e.g. `--shard 2/8`; join shards with `chirpmap merge`.
     #[arg(long, value_parser = parse_shard)]
     pub shard: Option<Shard>,
@@ -92,11 +92,7 @@ pub fn run_sweep_cmd(args: &SweepArgs, no_progress: bool) -> Result<()> {
     }
     let plan = plan(&def).map_err(|e| anyhow!("{}: {e}", args.sweep))?;
     let shard = args.shard.unwrap_or(Shard::ALL);
-    // At most MAX_THREADS (the parser's range), so the conversion cannot fail.
-    let threads = args.threads.map_or_else(
-        || std::thread::available_parallelism().map_or(1, |n| n.get()),
-        |n| usize::try_from(n).unwrap_or(1),
-    );
+    let threads = args.threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
     let total = plan.shard_jobs(shard).len();
     let bar = ProgressBar::new(total as u64);
     if no_progress {

@@ -74,9 +74,9 @@ impl DirLock {
 /// moves files, so an interruption waits for it rather than cutting it.
 static LIVE: std::sync::Mutex<Vec<Live>> = std::sync::Mutex::new(Vec::new());
 
-/// A staging folder, and the output directory (with the outermost directory
-/// created on the way to it) when this run created it.
-type Live = (PathBuf, Option<(PathBuf, Option<PathBuf>)>);
+/// A staging folder, and the output directory with the outermost directory
+/// created on the way to it, when this run created them.
+type Live = (PathBuf, Option<(PathBuf, PathBuf)>);
 
 fn live() -> std::sync::MutexGuard<'static, Vec<Live>> {
     LIVE.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
@@ -91,7 +91,7 @@ pub fn abandon_all() -> impl Sized {
     for (staging, created) in live.drain(..) {
         remove_staging(&staging);
         if let Some((dir, top)) = created {
-            remove_created(&dir, top.as_deref());
+            remove_created(&dir, &top);
         }
     }
     live
@@ -102,10 +102,10 @@ pub fn abandon_all() -> impl Sized {
 /// the way, up to `top`. A [`DIR_LOCK`] file (file systems that cannot lock a
 /// directory) is never unlinked: a run waiting on it would then hold a lock
 /// on a file another run no longer sees; the directory stays with it.
-fn remove_created(dir: &Path, top: Option<&Path>) {
+fn remove_created(dir: &Path, top: &Path) {
     for d in dir.ancestors() {
         // `remove_dir` removes only empty directories.
-        if std::fs::remove_dir(d).is_err() || top.is_none_or(|t| d == t) {
+        if std::fs::remove_dir(d).is_err() || d == top {
             break;
         }
     }
@@ -290,10 +290,9 @@ pub struct Staged {
     committed: bool,
     /// The command writing (`simulate`, …), recorded in the manifest.
     command: &'static str,
-    /// Whether `dir` did not exist before, so a failure may remove it.
-    created_dir: bool,
-    /// The outermost directory this run created on the way to `dir`
-    /// (`a` of a new `a/b/c`), removed with the rest when empty.
+    /// When `dir` did not exist before: the outermost directory this run
+    /// created on the way to it (`a` of a new `a/b/c`, `dir` itself when only
+    /// it was new), so a failure may remove them when empty.
     created_top: Option<PathBuf>,
 }
 
@@ -315,7 +314,6 @@ impl Staged {
                 dir.display()
             );
         }
-        let created_dir = !dir.exists();
         let created_top =
             dir.ancestors().take_while(|a| !a.as_os_str().is_empty() && !a.exists()).last().map(Path::to_path_buf);
         // Unique within the process too (two output groups, or two commands of
@@ -325,12 +323,12 @@ impl Staged {
         static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
         let serial = NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         let staging = dir.join(format!("{STAGING_PREFIX}{}-{serial}", std::process::id()));
-        live().push((staging.clone(), created_dir.then(|| (dir.to_path_buf(), created_top.clone()))));
+        live().push((staging.clone(), created_top.clone().map(|top| (dir.to_path_buf(), top))));
         let refuse = |e: anyhow::Error| {
             live().retain(|(s, _)| *s != staging);
             remove_staging(&staging);
-            if created_dir {
-                remove_created(dir, created_top.as_deref());
+            if let Some(top) = &created_top {
+                remove_created(dir, top);
             }
             Err(e)
         };
@@ -388,7 +386,6 @@ impl Staged {
             inputs: inputs.iter().map(|p| p.to_path_buf()).collect(),
             committed: false,
             command,
-            created_dir,
             created_top,
         })
     }
@@ -462,12 +459,9 @@ impl Staged {
         for name in &written {
             let p = self.staging.join(name);
             let meta = std::fs::metadata(&p).with_context(|| format!("cannot read back {}", p.display()))?;
-            new.set(name, Identity::of(&meta), self.command);
-            both.entries.push(Entry {
-                name: name.clone(),
-                id: Some(Identity::of(&meta)),
-                by: Some(self.command.into()),
-            });
+            let id = Identity::of(&meta);
+            both.entries.push(Entry { name: name.clone(), id: Some(id.clone()), by: Some(self.command.into()) });
+            new.set(name, id, self.command);
         }
         let put_manifest = |m: &Manifest, staged_name: &str| -> Result<()> {
             let staged = self.staging.join(staged_name);
@@ -610,8 +604,8 @@ impl Drop for Staged {
             remove_staging(&self.staging);
             // Leave no empty directory behind that we created.
             // (Its lock file too, unless another run has written there since.)
-            if self.created_dir {
-                remove_created(&self.dir, self.created_top.as_deref());
+            if let Some(top) = &self.created_top {
+                remove_created(&self.dir, top);
             }
         }
     }
