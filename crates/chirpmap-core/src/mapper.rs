@@ -315,7 +315,13 @@ impl AccumulationMapper {
     /// [`MappingParams::validate`].
     pub fn new(spec: GridSpec, params: MappingParams) -> Result<Self, CoreError> {
         params.validate()?;
-        Ok(Self { grid: Grid::zeros(spec), params, cells_updated: 0, max_cell_bound: 0.0, parts: Vec::new() })
+        Ok(Self {
+            grid: Grid::zeros_prefaulted(spec),
+            params,
+            cells_updated: 0,
+            max_cell_bound: 0.0,
+            parts: Vec::new(),
+        })
     }
 
     /// Total cell updates so far (for benchmarks and progress reporting).

@@ -497,7 +497,7 @@ fn prepare<'a>(echoes: &[Echo], spec: GridSpec, params: &'a EvidenceParams) -> R
         meas[m].echoes.push(k);
         preps[k].meas = m;
     }
-    Ok(Ctx { preps, meas, spec, params, free: vec![0.0; spec.len()] })
+    Ok(Ctx { preps, meas, spec, params, free: crate::grid::prefaulted_zeros(spec.len()) })
 }
 
 /// Carves each measurement's first ellipse, shrunk by kσ plus a cell's
