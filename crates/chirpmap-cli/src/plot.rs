@@ -202,6 +202,34 @@ pub enum ColourScale {
     Linear,
 }
 
+/// Whether any value of `c` is negative, and its finite minimum and maximum
+/// (±∞ when none is finite). Eight independent lanes of branch-free selects,
+/// so the loop vectorises; a fold of `f64::min`/`max` over one accumulator
+/// did not and took ~4 ms of the default run's figure (issue 14). Minimum
+/// and maximum do not depend on the order the values are met in.
+fn finite_extent(c: &[f64]) -> (bool, f64, f64) {
+    const LANES: usize = 8;
+    let (mut negative, mut lo, mut hi) = ([false; LANES], [f64::INFINITY; LANES], [f64::NEG_INFINITY; LANES]);
+    let mut lanes = c.chunks_exact(LANES);
+    for x in &mut lanes {
+        for k in 0..LANES {
+            let v = x[k];
+            negative[k] |= v < 0.0;
+            let finite = v.is_finite();
+            lo[k] = if finite && v < lo[k] { v } else { lo[k] };
+            hi[k] = if finite && v > hi[k] { v } else { hi[k] };
+        }
+    }
+    let tail = lanes.remainder().iter().copied();
+    let tail_lo = tail.clone().filter(|v| v.is_finite()).fold(f64::INFINITY, f64::min);
+    let tail_hi = tail.clone().filter(|v| v.is_finite()).fold(f64::NEG_INFINITY, f64::max);
+    (
+        negative.iter().any(|n| *n) || tail.clone().any(|v| v < 0.0),
+        lo.iter().copied().fold(tail_lo, f64::min),
+        hi.iter().copied().fold(tail_hi, f64::max),
+    )
+}
+
 impl ColourScale {
     /// The value range the colour bar spans for `data`.
     fn range(self, data: &[f64]) -> (f64, f64) {
@@ -234,11 +262,7 @@ impl ColourScale {
         use rayon::prelude::*;
         let (negative, min, max) = data
             .par_chunks(1 << 15)
-            .map(|c| {
-                let finite = c.iter().copied().filter(|v| v.is_finite());
-                let (min, max) = finite.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| (lo.min(v), hi.max(v)));
-                (c.iter().any(|v| *v < 0.0), min, max)
-            })
+            .map(finite_extent)
             .reduce(|| (false, f64::INFINITY, f64::NEG_INFINITY), |a, b| (a.0 | b.0, a.1.min(b.1), a.2.max(b.2)));
         let scale = if negative { Self::Linear } else { Self::SqrtOfMax };
         // The finite minimum and maximum are the same whatever the chunks' order.
@@ -980,6 +1004,23 @@ mod tests {
         assert_eq!(ColourScale::Linear.range(&[f64::NAN]), (0.0, 1.0));
         assert_eq!(ColourScale::for_values(&g.data), ColourScale::Linear);
         assert_eq!(ColourScale::for_values(&[0.0, 3.0]), ColourScale::SqrtOfMax);
+    }
+
+    proptest::proptest! {
+        /// The eight-lane pass gives what the two plain passes give, for any
+        /// length (lanes and tail) and any mix of NaN, ±∞, ±0 and negatives.
+        #[test]
+        fn one_lane_pass_is_the_two_plain_passes(data in proptest::collection::vec(proptest::prop_oneof![
+            -5.0f64..5.0,
+            proptest::strategy::Just(f64::NAN),
+            proptest::strategy::Just(f64::INFINITY),
+            proptest::strategy::Just(f64::NEG_INFINITY),
+            proptest::strategy::Just(-0.0),
+            proptest::strategy::Just(0.0),
+        ], 0..40)) {
+            let scale = ColourScale::for_values(&data);
+            proptest::prop_assert_eq!(ColourScale::with_range(&data), (scale, scale.range(&data)));
+        }
     }
 
     #[test]
