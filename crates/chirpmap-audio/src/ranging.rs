@@ -185,6 +185,10 @@ pub struct Ranger {
     grams: HashMap<(usize, usize), Option<[[f64; 3]; 3]>>,
     /// The matched method's FFT buffer, reused from chirp to chirp.
     buf: Vec<Complex32>,
+    /// The gap method's smoothers by window: their coefficients come from a
+    /// least-squares solve per window position, which per frame was ~4 % of a
+    /// gap run's CPU (issue 14).
+    savgol: HashMap<usize, std::sync::Arc<SavitzkyGolay>>,
 }
 
 /// Frames per chirp in the gap method (evenly spread; the median is taken).
@@ -270,7 +274,15 @@ impl Ranger {
         let a = lim.speed_of_sound_mps;
         let nfft = (frame * 8).next_power_of_two();
         let bin_hz = fs / nfft as f64;
-        let sg = SavitzkyGolay::new((nfft / frame) | 1, 2).ok()?;
+        let sg_window = (nfft / frame) | 1;
+        let sg = match self.savgol.get(&sg_window) {
+            Some(sg) => std::sync::Arc::clone(sg),
+            None => {
+                let sg = std::sync::Arc::new(SavitzkyGolay::new(sg_window, 2).ok()?);
+                self.savgol.insert(sg_window, std::sync::Arc::clone(&sg));
+                sg
+            }
+        };
         let guard_hz = rate.sqrt();
         let df_max = rate * lim.max_delta_d_m / a;
         let dir = tpl.direction();

@@ -16,6 +16,11 @@ pub struct FftCache {
     real_planner: RealFftPlanner<f32>,
     real_plans: HashMap<usize, Arc<dyn RealToComplex<f32>>>,
     windows: HashMap<usize, Arc<Vec<f32>>>,
+    /// [`magnitude_bins`]' input, output and scratch buffers, reused from
+    /// frame to frame (the gap method runs two per frame, 24 frames a chirp).
+    real_in: Vec<f32>,
+    real_out: Vec<Complex32>,
+    real_scratch: Vec<Complex32>,
 }
 
 impl std::fmt::Debug for FftCache {
@@ -32,6 +37,9 @@ impl Default for FftCache {
             real_planner: RealFftPlanner::new(),
             real_plans: HashMap::new(),
             windows: HashMap::new(),
+            real_in: Vec::new(),
+            real_out: Vec::new(),
+            real_scratch: Vec::new(),
         }
     }
 }
@@ -118,13 +126,16 @@ pub fn magnitude_bins(cache: &mut FftCache, frame: &[f32], nfft: usize, bins: st
     }
     let (lo, hi) = (bins.start.min(n / 2 + 1), bins.end.min(n / 2 + 1));
     let plan = cache.plan_real(n);
-    let mut input = plan.make_input_vec();
-    for (dst, (x, wi)) in input.iter_mut().zip(frame.iter().zip(w.iter())) {
-        *dst = x * wi;
-    }
-    let mut out = plan.make_output_vec();
-    // The buffers come from the plan, so their lengths always match.
-    if plan.process(&mut input, &mut out).is_err() {
+    let (input, out, scratch) = (&mut cache.real_in, &mut cache.real_out, &mut cache.real_scratch);
+    // The windowed frame, zero-padded to n (the FFT uses its input as scratch,
+    // so every value is written again each time).
+    input.clear();
+    input.extend(frame.iter().zip(w.iter()).map(|(x, wi)| x * wi));
+    input.resize(n, 0.0);
+    out.resize(n / 2 + 1, Complex32::new(0.0, 0.0));
+    scratch.resize(plan.get_scratch_len(), Complex32::new(0.0, 0.0));
+    // The buffers are sized from the plan, so their lengths always match.
+    if plan.process_with_scratch(input, out, scratch).is_err() {
         return vec![0.0; hi.saturating_sub(lo)];
     }
     // |c| in f64 from the f32 parts: exact squares and one rounding, where
