@@ -85,44 +85,90 @@ pub fn for_each_band_span(
     dd_lo_m: f64,
     dd_hi_m: f64,
     spec: &GridSpec,
-    mut span: impl FnMut(usize, usize, usize),
+    span: impl FnMut(usize, usize, usize),
 ) -> Result<(), CoreError> {
-    let outer = Ellipse::new(source, listener, dd_hi_m)?;
-    let inner = if dd_lo_m > 0.0 && dd_lo_m < dd_hi_m { Some(Ellipse::new(source, listener, dd_lo_m)?) } else { None };
-    if dd_lo_m >= dd_hi_m && dd_lo_m > 0.0 {
-        return Ok(());
+    if let Some(band) = Band::new(source, listener, dd_lo_m, dd_hi_m, spec)? {
+        band.spans_in_rows(spec, 0..spec.ny, span);
     }
-    let Some((j_lo, j_hi)) = rows_of(&outer, spec) else { return Ok(()) };
-    for j in j_lo..=j_hi {
-        let y = spec.y_min_m + (j as f64 + 0.5) * spec.cell_m;
-        let Some((xo_lo, xo_hi)) = row_interval(&outer, y) else { continue };
-        match inner.as_ref().and_then(|e| row_interval(e, y)) {
-            None => {
-                if let Some((lo, hi)) = centre_cols(spec, xo_lo, xo_hi) {
-                    span(j, lo, hi);
+    Ok(())
+}
+
+/// One echo's band ([`for_each_band_span`]) with its ellipses and rows
+/// computed once, so that its spans can be walked a few rows at a time
+/// (a band of grid rows per thread: ring deposits, issue 14).
+#[derive(Debug, Clone)]
+pub(crate) struct Band {
+    outer: Ellipse,
+    inner: Option<Ellipse>,
+    /// Rows `[lo, hi]` the band can enter.
+    rows: (usize, usize),
+}
+
+impl Band {
+    /// The band of `dd_lo_m..=dd_hi_m`, `None` when it enters no row of the
+    /// grid or is empty; the errors of [`for_each_band_span`].
+    pub(crate) fn new(
+        source: Point,
+        listener: Point,
+        dd_lo_m: f64,
+        dd_hi_m: f64,
+        spec: &GridSpec,
+    ) -> Result<Option<Self>, CoreError> {
+        let outer = Ellipse::new(source, listener, dd_hi_m)?;
+        let inner =
+            if dd_lo_m > 0.0 && dd_lo_m < dd_hi_m { Some(Ellipse::new(source, listener, dd_lo_m)?) } else { None };
+        if dd_lo_m >= dd_hi_m && dd_lo_m > 0.0 {
+            return Ok(None);
+        }
+        Ok(rows_of(&outer, spec).map(|rows| Self { outer, inner, rows }))
+    }
+
+    /// Rows `[lo, hi]` the band can enter.
+    pub(crate) fn rows(&self) -> (usize, usize) {
+        self.rows
+    }
+
+    /// [`for_each_band_span`]'s spans in the grid rows `rows` only.
+    pub(crate) fn spans_in_rows(
+        &self,
+        spec: &GridSpec,
+        rows: std::ops::Range<usize>,
+        mut span: impl FnMut(usize, usize, usize),
+    ) {
+        let (j_lo, j_hi) = (self.rows.0.max(rows.start), self.rows.1.min(rows.end.saturating_sub(1)));
+        if rows.is_empty() || j_lo > j_hi {
+            return;
+        }
+        for j in j_lo..=j_hi {
+            let y = spec.y_min_m + (j as f64 + 0.5) * spec.cell_m;
+            let Some((xo_lo, xo_hi)) = row_interval(&self.outer, y) else { continue };
+            match self.inner.as_ref().and_then(|e| row_interval(e, y)) {
+                None => {
+                    if let Some((lo, hi)) = centre_cols(spec, xo_lo, xo_hi) {
+                        span(j, lo, hi);
+                    }
                 }
-            }
-            Some((xi_lo, xi_hi)) => {
-                // Centres strictly inside the inner ellipse are excluded;
-                // those on it belong to the band.
-                if let Some((lo, hi)) = centre_cols(spec, xo_lo, xi_lo) {
-                    span(j, lo, hi);
-                }
-                if let Some((lo, hi)) = centre_cols(spec, xi_hi, xo_hi) {
-                    // A boundary cell shared by both halves (a degenerate
-                    // inner interval) is reported once.
-                    let lo_right = match centre_cols(spec, xo_lo, xi_lo) {
-                        Some((_, left_hi)) if left_hi >= lo => left_hi + 1,
-                        _ => lo,
-                    };
-                    if lo_right <= hi {
-                        span(j, lo_right, hi);
+                Some((xi_lo, xi_hi)) => {
+                    // Centres strictly inside the inner ellipse are excluded;
+                    // those on it belong to the band.
+                    if let Some((lo, hi)) = centre_cols(spec, xo_lo, xi_lo) {
+                        span(j, lo, hi);
+                    }
+                    if let Some((lo, hi)) = centre_cols(spec, xi_hi, xo_hi) {
+                        // A boundary cell shared by both halves (a degenerate
+                        // inner interval) is reported once.
+                        let lo_right = match centre_cols(spec, xo_lo, xi_lo) {
+                            Some((_, left_hi)) if left_hi >= lo => left_hi + 1,
+                            _ => lo,
+                        };
+                        if lo_right <= hi {
+                            span(j, lo_right, hi);
+                        }
                     }
                 }
             }
         }
     }
-    Ok(())
 }
 
 /// Naive oracle for [`for_each_band_span`]: tests every cell centre.
@@ -144,6 +190,42 @@ pub fn band_cells_naive(
             if inside_outer && outside_inner {
                 cell(i, j);
             }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        /// Walking a band a few rows at a time (as the ring deposits do, one
+        /// band of rows per thread) gives exactly the spans of the whole walk,
+        /// in the same order.
+        #[test]
+        fn spans_by_rows_are_the_whole_walk(
+            sx in -8.0..8.0f64, sy in -8.0..8.0f64, lx in -8.0..8.0f64, ly in -8.0..8.0f64,
+            dd in 0.0..8.0f64, half in 0.0..2.0f64, rows_per_part in 1usize..40,
+        ) {
+            let (s, l) = (Point::new(sx, sy), Point::new(lx, ly));
+            prop_assume!(s.dist(l) > 0.01);
+            let spec = GridSpec { x_min_m: -10.013, y_min_m: -9.9871, cell_m: 0.1, nx: 200, ny: 190 };
+            let mut whole = Vec::new();
+            for_each_band_span(s, l, dd - half, dd + half, &spec, |j, lo, hi| whole.push((j, lo, hi))).expect("band");
+            let mut parts = Vec::new();
+            if let Some(band) = Band::new(s, l, dd - half, dd + half, &spec).expect("band") {
+                for start in (0..spec.ny).step_by(rows_per_part) {
+                    let rows = start..(start + rows_per_part).min(spec.ny);
+                    let mut outside = 0;
+                    band.spans_in_rows(&spec, rows.clone(), |j, lo, hi| {
+                        outside += usize::from(!rows.contains(&j));
+                        parts.push((j, lo, hi));
+                    });
+                    prop_assert_eq!(outside, 0, "a span outside rows {:?}", rows);
+                }
+            }
+            prop_assert_eq!(whole, parts);
         }
     }
 }
