@@ -334,6 +334,28 @@ mod tests {
             prop_assert_eq!(grey_of(p), oracle);
         }
 
+        /// The eight-lane maximum and check of evidence values give what one
+        /// fold over the cells gives (the code before issue 14's change): the
+        /// same divisor, or an error naming the same first bad cell.
+        #[test]
+        fn evidence_divisor_is_the_single_fold(data in proptest::collection::vec(prop_oneof![
+            -5.0f64..5.0, 0.0f64..100.0, Just(f64::NAN), Just(f64::INFINITY), Just(f64::NEG_INFINITY),
+            Just(-0.0), Just(0.0), Just(f64::MAX)
+        ], 1..40)) {
+            let ok = |v: f64| (0.0..=f64::MAX).contains(&v);
+            let (max, all_ok) = data.iter().fold((0.0f64, true), |(m, all), &v| (if v > m { v } else { m }, all & ok(v)));
+            let want = match data.iter().position(|&v| !all_ok && !ok(v)) {
+                Some(k) => Err(format!("cell ({k}, 0) holds")),
+                None => Ok(max.to_bits()),
+            };
+            let g = grid(data.len(), 1, data);
+            let got = occupancy_divisor(&g, MapValues::Evidence).map(f64::to_bits).map_err(|e| e.to_string());
+            match (&want, &got) {
+                (Err(w), Err(g)) => prop_assert!(g.starts_with(w.as_str()), "{} vs {}", g, w),
+                _ => prop_assert_eq!(&got, &want),
+            }
+        }
+
         /// The vectorised row is `grey_of` of each quotient, over the whole
         /// range of finite values (clamped ends and exact half steps included).
         #[test]

@@ -206,7 +206,9 @@ pub enum ColourScale {
 /// (±∞ when none is finite). Eight independent lanes of branch-free selects,
 /// so the loop vectorises; a fold of `f64::min`/`max` over one accumulator
 /// did not and took ~4 ms of the default run's figure (issue 14). Minimum
-/// and maximum do not depend on the order the values are met in.
+/// and maximum do not depend on the order the values are met in, but for
+/// the sign of a zero result (−0 or +0), which gives the same colours and
+/// tick labels.
 fn finite_extent(c: &[f64]) -> (bool, f64, f64) {
     const LANES: usize = 8;
     let (mut negative, mut lo, mut hi) = ([false; LANES], [f64::INFINITY; LANES], [f64::NEG_INFINITY; LANES]);

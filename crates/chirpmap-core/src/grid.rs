@@ -100,6 +100,11 @@ pub fn prefaulted_zeros(len: usize) -> Vec<f64> {
     const PAGE: usize = 512;
     let mut data = vec![0.0; len];
     data.par_chunks_mut(PAGE << 7).for_each(|chunk| chunk.iter_mut().step_by(PAGE).for_each(|v| *v = 0.0));
+    // The stores are 4 KiB apart from the first cell, which need not start a
+    // page: the last page can hold cells after the last store.
+    if let Some(v) = data.last_mut() {
+        *v = 0.0;
+    }
     data
 }
 

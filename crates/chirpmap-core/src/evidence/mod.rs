@@ -554,16 +554,13 @@ fn carve_free(ctx: &mut Ctx) -> Result<u64, CoreError> {
 /// in its rows in the rings' order: a cell receives the same additions in
 /// the same order as ring after ring on one thread, so the map is
 /// bit-identical whatever the thread count. On a large grid with many
-/// unexplained echoes (Table I at 1 ms: 1 000 × 1 000 cells, ~1 400 rings)
-/// this was 45 % of a `simulate`, on one core (issue 14).
+/// unexplained echoes (Table I at 1 ms: 1 000 × 1 000 cells, 472 rings of
+/// 1 505 echoes) this was 45 % of a `simulate`, on one core (issue 14).
 fn deposit_rings(grid: &mut Grid, rings: &[&Prep], params: &EvidenceParams) -> Result<u64, CoreError> {
     use rayon::prelude::*;
     /// Grid rows per task: a band of a 1 000-column grid is 256 KB.
     const BAND_ROWS: usize = 32;
     let spec = grid.spec;
-    if spec.nx == 0 || spec.ny == 0 {
-        return Ok(0);
-    }
     let bands: Vec<Option<Band>> = rings
         .iter()
         .map(|prep| {
@@ -572,6 +569,9 @@ fn deposit_rings(grid: &mut Grid, rings: &[&Prep], params: &EvidenceParams) -> R
             Band::new(e.focus_a, e.focus_b, e.delta_d_m - half, e.delta_d_m + half, &spec)
         })
         .collect::<Result<_, _>>()?;
+    if spec.nx == 0 || spec.ny == 0 {
+        return Ok(0);
+    }
     let n = grid
         .data
         .par_chunks_mut(BAND_ROWS * spec.nx)
@@ -610,6 +610,66 @@ pub fn logodds_to_probability(l: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The rings one after the other on one thread, as before issue 14's
+    /// banding: the oracle of [`deposit_rings`].
+    fn deposit_rings_in_turn(grid: &mut Grid, rings: &[&Prep], params: &EvidenceParams) -> Result<u64, CoreError> {
+        let spec = grid.spec;
+        let mut n = 0u64;
+        for prep in rings {
+            let e = &prep.ellipse;
+            let half = params.band_sigmas * prep.sigma_m;
+            let inv2s2 = 1.0 / (2.0 * prep.sigma_m * prep.sigma_m);
+            for_each_band_span(e.focus_a, e.focus_b, e.delta_d_m - half, e.delta_d_m + half, &spec, |j, lo, hi| {
+                for i in lo..=hi {
+                    let f = e.focal_excess(spec.cell_center(i, j));
+                    grid.data[j * spec.nx + i] += params.ring_logodds * (-f * f * inv2s2).exp();
+                }
+                n += (hi - lo + 1) as u64;
+            })?;
+        }
+        Ok(n)
+    }
+
+    /// Banded ring deposits give every cell the same bits and the same count
+    /// as ring after ring, on grids whose rows are not a multiple of the
+    /// band, one row high, and on 1, 2 and 3 threads; rings overlap.
+    #[test]
+    fn banded_rings_are_ring_after_ring() {
+        let params = EvidenceParams::default();
+        let echoes: Vec<Echo> = (0..40)
+            .map(|k| {
+                let t = f64::from(k);
+                let e = Echo::new(
+                    Point::new(-1.0 + 0.05 * t, 0.3),
+                    Point::new(2.0, -0.5 + 0.1 * t),
+                    0.5 + 0.17 * t,
+                    1.0,
+                    0.01 * t,
+                    0,
+                );
+                e.and_then(|e| e.with_sigma_m(0.01 + 0.002 * t)).expect("echo")
+            })
+            .collect();
+        for (nx, ny) in [(97, 101), (120, 1), (33, 64), (1, 70)] {
+            // A one-cell-wide grid is placed where the rings cross it.
+            let (x_min_m, y_min_m) = (if nx == 1 { 0.5 } else { -4.03 }, if ny == 1 { 0.01 } else { -3.97 });
+            let spec = GridSpec { x_min_m, y_min_m, cell_m: 0.08, nx, ny };
+            let ctx = prepare(&echoes, spec, &params).expect("prepared");
+            let rings: Vec<&Prep> = ctx.preps.iter().collect();
+            let mut want = Grid { spec, data: (0..nx * ny).map(|k| (k % 7) as f64 * 0.25).collect() };
+            let want_n = deposit_rings_in_turn(&mut want, &rings, &params).expect("oracle");
+            assert!(want_n > 0, "{nx}×{ny}: no cell written");
+            for threads in [1, 2, 3] {
+                let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("a thread pool");
+                let mut got = Grid { spec, data: (0..nx * ny).map(|k| (k % 7) as f64 * 0.25).collect() };
+                let got_n = pool.install(|| deposit_rings(&mut got, &rings, &params)).expect("banded");
+                assert_eq!(got_n, want_n, "{nx}×{ny}, {threads} threads: cells written");
+                let bits = |g: &Grid| g.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(&got), bits(&want), "{nx}×{ny}, {threads} threads");
+            }
+        }
+    }
 
     #[test]
     fn params_default_valid_and_bad_rejected() {
