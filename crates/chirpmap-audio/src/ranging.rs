@@ -29,6 +29,7 @@ use chirpmap_core::{Point, Sweep};
 use rustfft::num_complex::Complex32;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
+use std::sync::Arc;
 
 /// Ranging method (see the module docs).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -188,7 +189,7 @@ pub struct Ranger {
     /// The gap method's smoothers by window: their coefficients come from a
     /// least-squares solve per window position, which per frame was ~4 % of a
     /// gap run's CPU (issue 14).
-    savgol: HashMap<usize, std::sync::Arc<SavitzkyGolay>>,
+    savgol: HashMap<usize, Arc<SavitzkyGolay>>,
 }
 
 /// Frames per chirp in the gap method (evenly spread; the median is taken).
@@ -276,10 +277,10 @@ impl Ranger {
         let bin_hz = fs / nfft as f64;
         let sg_window = (nfft / frame) | 1;
         let sg = match self.savgol.get(&sg_window) {
-            Some(sg) => std::sync::Arc::clone(sg),
+            Some(sg) => Arc::clone(sg),
             None => {
-                let sg = std::sync::Arc::new(SavitzkyGolay::new(sg_window, 2).ok()?);
-                self.savgol.insert(sg_window, std::sync::Arc::clone(&sg));
+                let sg = Arc::new(SavitzkyGolay::new(sg_window, 2).ok()?);
+                self.savgol.insert(sg_window, Arc::clone(&sg));
                 sg
             }
         };

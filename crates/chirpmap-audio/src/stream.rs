@@ -675,7 +675,7 @@ fn scan_with_cap<S: BlockSource + Send + ?Sized, R: Send>(
             (h, cache.plan(nfft, false))
         },
         || {
-            let (inv, read) = rayon::join(
+            rayon::join(
                 || FftCache::default().plan(nfft, true),
                 || -> Result<bool, AudioError> {
                     let mut eof = false;
@@ -684,8 +684,7 @@ fn scan_with_cap<S: BlockSource + Send + ?Sized, R: Send>(
                     }
                     Ok(eof)
                 },
-            );
-            (inv, read)
+            )
         },
     );
     let mut eof = eof?;
