@@ -417,34 +417,30 @@ impl Ranger {
         // Borrowed, not copied (a copy was 512 KB per chirp at 48 kHz).
         let Self { cache, spectra, buf, .. } = self;
         let h = spectra.entry(nfft).or_insert_with(|| tpl.conj_spectrum(cache, nfft));
-        // The engine's buffer, each value written once (a fresh zeroed
-        // 512 KB buffer per chirp cost a memset and page faults).
+        // The analytic signal's spectrum: bins 0 and n/2 as they are, the
+        // positive frequencies doubled, the negative ones 0. The segment is
+        // real, so its bins 0..=n/2 come from a real-input FFT (about half a
+        // complex one; the values differ from the complex FFT's at f32
+        // rounding level; BENCHMARKS.md "Session 12"). Each value of the
+        // engine's buffer is written once (a fresh zeroed 512 KB buffer per
+        // chirp cost a memset and page faults).
+        let half = nfft / 2;
         buf.clear();
-        buf.extend(seg.iter().take(nfft).map(|v| Complex32::new(*v, 0.0)));
+        if let Some(spec) = cache.forward_real(seg.iter().copied(), nfft) {
+            buf.extend(spec.iter().zip(h.iter()).enumerate().map(|(k, (x, hh))| {
+                let y = x * hh;
+                if k == 0 || k == half { y } else { y * 2.0 }
+            }));
+        }
         buf.resize(nfft, Complex32::new(0.0, 0.0));
-        cache.forward(buf);
-        // Analytic signal: bins 0 and n/2 as they are, the positive
-        // frequencies doubled, the negative ones removed (slices, not a
-        // branch per bin).
-        let (n, half) = (buf.len().min(h.len()), nfft / 2);
-        if n > 0 {
-            buf[0] *= h[0];
-        }
-        let top = half.min(n);
-        if top > 1 {
-            for (b, hh) in buf[1..top].iter_mut().zip(&h[1..top]) {
-                *b = *b * hh * 2.0;
-            }
-        }
-        if half > 0 && half < n {
-            buf[half] *= h[half];
-        }
-        if half + 1 < n {
-            buf[half + 1..n].fill(Complex32::new(0.0, 0.0));
-        }
         cache.inverse(buf);
         let n_lags = (seg.len() + 1).saturating_sub(m).min(nfft);
-        buf[..n_lags].iter().map(|c| f64::from(c.norm())).collect()
+        // |c| in f64 from the f32 parts (exact squares, one rounding), as in
+        // `magnitude_bins`: `norm` is a hypotf call per lag.
+        buf[..n_lags]
+            .iter()
+            .map(|c| (f64::from(c.re) * f64::from(c.re) + f64::from(c.im) * f64::from(c.im)).sqrt())
+            .collect()
     }
 
     fn matched(&mut self, x: &[f32], onset: usize, tpl: &ChirpTemplate, lim: &RangeLimits) -> Option<Estimate> {
@@ -626,6 +622,60 @@ pub fn delta_d_for_wall(speaker: Point, mic: Point, wall_normal: Point, h_m: f64
 
 #[cfg(test)]
 mod tests {
+
+    /// The matched envelope from a real-input FFT against the complex-FFT
+    /// path it replaced (the oracle: the segment as complex values, the
+    /// analytic spectrum built over all n bins, `norm` per lag), on a chirp
+    /// with an echo and noise, for segment lengths below, at and above a
+    /// power of two. The two differ by f32 rounding only: ≤ 1e-5 of the peak.
+    #[test]
+    fn real_input_envelope_is_the_complex_paths() {
+        fn oracle(seg: &[f32], tpl: &ChirpTemplate, nfft: usize) -> Vec<f64> {
+            let mut cache = FftCache::default();
+            let h = tpl.conj_spectrum(&mut cache, nfft);
+            let mut buf: Vec<Complex32> = seg.iter().take(nfft).map(|v| Complex32::new(*v, 0.0)).collect();
+            buf.resize(nfft, Complex32::new(0.0, 0.0));
+            cache.forward(&mut buf);
+            let half = nfft / 2;
+            for (k, (b, hh)) in buf.iter_mut().zip(&h).enumerate() {
+                *b = match k {
+                    0 => *b * hh,
+                    k if k < half => *b * hh * 2.0,
+                    k if k == half => *b * hh,
+                    _ => Complex32::new(0.0, 0.0),
+                };
+            }
+            cache.inverse(&mut buf);
+            let n_lags = (seg.len() + 1).saturating_sub(tpl.len()).min(nfft);
+            buf[..n_lags].iter().map(|c| f64::from(c.norm())).collect()
+        }
+        let chirp = chirpmap_core::LinearChirp::new(6000.0, 1000.0, 0.02).unwrap();
+        let tpl = ChirpTemplate::new(chirp, 16_000.0).unwrap();
+        let m = tpl.len();
+        let mut next = crate::test_rng::xorshift(11);
+        let mut ranger = Ranger::new();
+        for extra in [200usize, 512 - 320, 700] {
+            let len = m + extra;
+            let mut seg: Vec<f32> = (0..len).map(|_| (next() % 2001) as f32 / 1000.0 - 1.0).map(|v| 0.01 * v).collect();
+            for (i, v) in tpl.real.iter().enumerate() {
+                seg[i + 20] += v;
+                if let Some(s) = seg.get_mut(i + 90) {
+                    *s += 0.3 * v;
+                }
+            }
+            let nfft = len.next_power_of_two();
+            let got = ranger.matched_envelope(&seg, &tpl, nfft);
+            let want = oracle(&seg, &tpl, nfft);
+            assert_eq!(got.len(), want.len(), "segment of {len}");
+            let peak = want.iter().copied().fold(0.0, f64::max);
+            assert!(peak > 0.0);
+            let worst = got.iter().zip(&want).map(|(g, w)| (g - w).abs()).fold(0.0, f64::max);
+            assert!(worst <= 1e-5 * peak, "segment of {len}: worst difference {worst} of peak {peak}");
+            // The echo is found where the oracle finds it.
+            let arg = |v: &[f64]| v.iter().enumerate().skip(40).max_by(|a, b| a.1.total_cmp(b.1)).map(|p| p.0);
+            assert_eq!(arg(&got), arg(&want));
+        }
+    }
 
     /// The model widened by pairwise maxima gives the sliding fold's mask
     /// (the definition, kept here as the oracle), with NaN, zeros, a model

@@ -21,6 +21,10 @@ pub struct FftCache {
     real_in: Vec<f32>,
     real_out: Vec<Complex32>,
     real_scratch: Vec<Complex32>,
+    /// Scratch of the complex plans, reused: `Fft::process` allocates and
+    /// zeroes a fresh one per call (512 KB per matched-filter chirp at
+    /// 48 kHz), and the transform's values do not depend on its contents.
+    scratch: Vec<Complex32>,
 }
 
 impl std::fmt::Debug for FftCache {
@@ -40,6 +44,7 @@ impl Default for FftCache {
             real_in: Vec::new(),
             real_out: Vec::new(),
             real_scratch: Vec::new(),
+            scratch: Vec::new(),
         }
     }
 }
@@ -64,11 +69,35 @@ impl FftCache {
     }
     /// In-place forward FFT of `buf` (unnormalised).
     pub fn forward(&mut self, buf: &mut [Complex32]) {
-        self.plan(buf.len(), false).process(buf);
+        self.process(buf, false);
     }
     /// In-place inverse FFT of `buf` (unnormalised: scale by 1/n yourself).
     pub fn inverse(&mut self, buf: &mut [Complex32]) {
-        self.plan(buf.len(), true).process(buf);
+        self.process(buf, true);
+    }
+    /// Bins 0..=n/2 of the forward FFT of `samples` zero-padded (or cut) to
+    /// `n` values, by a real-input FFT in the cache's reused buffers. `None`
+    /// only if realfft rejects the buffers, which are sized from its plan.
+    pub fn forward_real(&mut self, samples: impl IntoIterator<Item = f32>, n: usize) -> Option<&[Complex32]> {
+        let plan = self.plan_real(n);
+        let (input, out, scratch) = (&mut self.real_in, &mut self.real_out, &mut self.real_scratch);
+        // Every value is written again each time: the FFT uses its input as
+        // scratch.
+        input.clear();
+        input.extend(samples.into_iter().take(n));
+        input.resize(n, 0.0);
+        out.resize(n / 2 + 1, Complex32::new(0.0, 0.0));
+        scratch.resize(plan.get_scratch_len(), Complex32::new(0.0, 0.0));
+        plan.process_with_scratch(input, out, scratch).ok()?;
+        Some(out)
+    }
+    fn process(&mut self, buf: &mut [Complex32], inverse: bool) {
+        let plan = self.plan(buf.len(), inverse);
+        let need = plan.get_inplace_scratch_len();
+        if self.scratch.len() < need {
+            self.scratch.resize(need, Complex32::new(0.0, 0.0));
+        }
+        plan.process_with_scratch(buf, &mut self.scratch[..need]);
     }
 }
 
@@ -125,19 +154,9 @@ pub fn magnitude_bins(cache: &mut FftCache, frame: &[f32], nfft: usize, bins: st
         return Vec::new();
     }
     let (lo, hi) = (bins.start.min(n / 2 + 1), bins.end.min(n / 2 + 1));
-    let plan = cache.plan_real(n);
-    let (input, out, scratch) = (&mut cache.real_in, &mut cache.real_out, &mut cache.real_scratch);
-    // The windowed frame, zero-padded to n (the FFT uses its input as scratch,
-    // so every value is written again each time).
-    input.clear();
-    input.extend(frame.iter().zip(w.iter()).map(|(x, wi)| x * wi));
-    input.resize(n, 0.0);
-    out.resize(n / 2 + 1, Complex32::new(0.0, 0.0));
-    scratch.resize(plan.get_scratch_len(), Complex32::new(0.0, 0.0));
-    // The buffers are sized from the plan, so their lengths always match.
-    if plan.process_with_scratch(input, out, scratch).is_err() {
+    let Some(out) = cache.forward_real(frame.iter().zip(w.iter()).map(|(x, wi)| x * wi), n) else {
         return vec![0.0; hi.saturating_sub(lo)];
-    }
+    };
     // |c| in f64 from the f32 parts: exact squares and one rounding, where
     // `norm` (hypotf) is a libm call per bin (8 % of a gap run's time).
     out.get(lo..hi)
