@@ -585,14 +585,9 @@ fn deposit_rings(grid: &mut Grid, rings: &[&Prep], params: &EvidenceParams) -> R
                 if hi < rows.start || lo >= rows.end {
                     continue;
                 }
-                let e = &prep.ellipse;
-                let inv2s2 = 1.0 / (2.0 * prep.sigma_m * prep.sigma_m);
                 band.spans_in_rows(&spec, rows.clone(), |j, lo, hi| {
                     let row = (j - rows.start) * spec.nx;
-                    for i in lo..=hi {
-                        let f = e.focal_excess(spec.cell_center(i, j));
-                        cells[row + i] += params.ring_logodds * (-f * f * inv2s2).exp();
-                    }
+                    add_ring_span(&mut cells[row..row + spec.nx], &spec, prep, params.ring_logodds, j, lo, hi);
                     n += (hi - lo + 1) as u64;
                 });
             }
@@ -600,6 +595,78 @@ fn deposit_rings(grid: &mut Grid, rings: &[&Prep], params: &EvidenceParams) -> R
         })
         .sum();
     Ok(n)
+}
+
+/// Adds the ring of `prep` to cells `lo..=hi` of grid row `j` (`row`):
+/// `ring_logodds · exp(−f² / 2σ²)` with `f` the cell centre's focal excess.
+/// The distances to the foci are `sqrt(dx² + dy²)`, not `hypot`: a libm
+/// call per distance was 14 % of a Table I 1 ms `simulate` with the evidence
+/// mapper, and grid coordinates are far from where `hypot`'s overflow
+/// guard matters. The results differ from `Ellipse::focal_excess`'s in the
+/// last bits (test `ring_weights_are_the_focal_excess_gaussian`), and so
+/// do those of [`exp_nonpositive`].
+fn add_ring_span(row: &mut [f64], spec: &GridSpec, prep: &Prep, ring_logodds: f64, j: usize, lo: usize, hi: usize) {
+    let e = &prep.ellipse;
+    let inv2s2 = 1.0 / (2.0 * prep.sigma_m * prep.sigma_m);
+    let y = spec.y_min_m + (j as f64 + 0.5) * spec.cell_m;
+    let (dya, dyb) = (y - e.focus_a.y, y - e.focus_b.y);
+    let (dya2, dyb2, two_a) = (dya * dya, dyb * dyb, 2.0 * e.semi_major_m);
+    let Some(span) = row.get_mut(lo..=hi) else { return };
+    // Column numbers as `base + k` with k an i32, whose conversion to f64
+    // has a packed instruction (a usize's has none before AVX-512, and it
+    // kept the loop scalar); both parts are exact, so x is the cell centre.
+    const PIECE: usize = 1 << 16;
+    for (p, piece) in span.chunks_mut(PIECE).enumerate() {
+        let base = (lo + p * PIECE) as f64;
+        for (k, cell) in (0i32..).zip(piece.iter_mut()) {
+            let x = spec.x_min_m + (base + f64::from(k) + 0.5) * spec.cell_m;
+            let (dxa, dxb) = (x - e.focus_a.x, x - e.focus_b.x);
+            let f = (dxa * dxa + dya2).sqrt() + (dxb * dxb + dyb2).sqrt() - two_a;
+            *cell += ring_logodds * exp_nonpositive(-f * f * inv2s2);
+        }
+    }
+}
+
+/// `e^x` for `x ≤ 0`, within 2 ulp of `f64::exp` down to −700 (below, the
+/// value at −700, 1e-304). Hand-written because libm's `exp` is a call the
+/// ring loop cannot vectorise (13 % of a Table I 1 ms `simulate` with the
+/// evidence mapper) and no maintained crate offers a portable f64 `exp` for
+/// the baseline x86-64 target. Cody and Waite's reduction (1980):
+/// `x = k·ln 2 + r`, `|r| ≤ ln 2 / 2`, with ln 2 split in fdlibm's two parts
+/// so that `k·LN2_HI` is exact; `k` rounded by adding 1.5·2^52, which leaves it
+/// in the low mantissa bits; `e^r` by its Taylor series to degree 12
+/// (remainder < 2e-16 relative); `2^k` built in the exponent field.
+#[inline]
+fn exp_nonpositive(x: f64) -> f64 {
+    const ROUND: f64 = 6_755_399_441_055_744.0; // 1.5 · 2^52
+    // fdlibm's ln2_hi (its low 21 mantissa bits zero) and ln2_lo.
+    const LN2_HI: f64 = f64::from_bits(0x3fe6_2e42_fee0_0000);
+    const LN2_LO: f64 = f64::from_bits(0x3dea_39ef_3579_3c76);
+    let x = x.max(-700.0);
+    let t = x * std::f64::consts::LOG2_E + ROUND;
+    let k = t - ROUND;
+    // k as a two's-complement integer: t's bits minus ROUND's.
+    let k_bits = t.to_bits().wrapping_sub(ROUND.to_bits());
+    let r = (x - k * LN2_HI) - k * LN2_LO;
+    let mut p = 1.0 / 479_001_600.0;
+    for c in [
+        1.0 / 39_916_800.0,
+        1.0 / 3_628_800.0,
+        1.0 / 362_880.0,
+        1.0 / 40_320.0,
+        1.0 / 5_040.0,
+        1.0 / 720.0,
+        1.0 / 120.0,
+        1.0 / 24.0,
+        1.0 / 6.0,
+        0.5,
+        1.0,
+        1.0,
+    ] {
+        p = p * r + c;
+    }
+    // k ∈ [−1010, 0], so k + 1023 is a normal exponent.
+    p * f64::from_bits(k_bits.wrapping_add(1023) << 52)
 }
 
 /// Converts log-odds to occupancy probability.
@@ -619,16 +686,64 @@ mod tests {
         for prep in rings {
             let e = &prep.ellipse;
             let half = params.band_sigmas * prep.sigma_m;
-            let inv2s2 = 1.0 / (2.0 * prep.sigma_m * prep.sigma_m);
             for_each_band_span(e.focus_a, e.focus_b, e.delta_d_m - half, e.delta_d_m + half, &spec, |j, lo, hi| {
-                for i in lo..=hi {
-                    let f = e.focal_excess(spec.cell_center(i, j));
-                    grid.data[j * spec.nx + i] += params.ring_logodds * (-f * f * inv2s2).exp();
-                }
+                let row = &mut grid.data[j * spec.nx..(j + 1) * spec.nx];
+                add_ring_span(row, &spec, prep, params.ring_logodds, j, lo, hi);
                 n += (hi - lo + 1) as u64;
             })?;
         }
         Ok(n)
+    }
+
+    /// The ring's `exp` against libm's (the oracle): within 2 ulp from 0 down
+    /// to −700, the value at −700 below it, exactly 1 at 0.
+    #[test]
+    fn exp_nonpositive_is_libms_exp() {
+        let mut r = 0x9e37_79b9_7f4a_7c15_u64;
+        let mut worst = 0.0f64;
+        for k in 0..200_000 {
+            r ^= r << 13;
+            r ^= r >> 7;
+            r ^= r << 17;
+            let u = (r >> 11) as f64 / (1u64 << 53) as f64;
+            // Half the draws in the rings' range (≥ −60), half down to −700.
+            let x = if k % 2 == 0 { -60.0 * u } else { -700.0 * u };
+            let (got, want) = (exp_nonpositive(x), x.exp());
+            worst = worst.max(((got - want) / want).abs() / f64::EPSILON);
+        }
+        assert!(worst <= 2.0, "worst error {worst} ulp");
+        assert_eq!(exp_nonpositive(0.0), 1.0);
+        assert_eq!(exp_nonpositive(-0.0), 1.0);
+        assert_eq!(exp_nonpositive(-800.0), exp_nonpositive(-700.0));
+        assert!(exp_nonpositive(-700.0) > 0.0 && (exp_nonpositive(-700.0) / (-700.0f64).exp() - 1.0).abs() < 1e-15);
+    }
+
+    /// A ring's weights against the definition (the oracle: `focal_excess`,
+    /// which measures with `hypot`, in a Gaussian) on rows crossing a ring,
+    /// foci inside and outside the grid: equal to 1e-12 of the ring's peak.
+    #[test]
+    fn ring_weights_are_the_focal_excess_gaussian() {
+        let params = EvidenceParams::default();
+        let spec = GridSpec { x_min_m: -3.1, y_min_m: -2.2, cell_m: 0.05, nx: 140, ny: 90 };
+        for (a, b, dd, sigma) in [((0.0, 0.0), (1.0, 0.5), 2.3, 0.02), ((-5.0, 1.0), (4.0, -3.0), 0.7, 0.1)] {
+            let echo = Echo::new(Point::new(a.0, a.1), Point::new(b.0, b.1), dd, 1.0, 0.0, 0)
+                .and_then(|e| e.with_sigma_m(sigma))
+                .expect("echo");
+            let ctx = prepare(&[echo], spec, &params).expect("prepared");
+            let prep = &ctx.preps[0];
+            let mut written = 0;
+            for j in 0..spec.ny {
+                let mut row = vec![0.0; spec.nx];
+                add_ring_span(&mut row, &spec, prep, params.ring_logodds, j, 0, spec.nx - 1);
+                for (i, got) in row.iter().enumerate() {
+                    let f = prep.ellipse.focal_excess(spec.cell_center(i, j));
+                    let want = params.ring_logodds * (-f * f / (2.0 * sigma * sigma)).exp();
+                    assert!((got - want).abs() <= 1e-12 * params.ring_logodds, "cell ({i}, {j}): {got} vs {want}");
+                    written += usize::from(want > 1e-3 * params.ring_logodds);
+                }
+            }
+            assert!(written > 50, "the ring crosses the grid ({written} cells)");
+        }
     }
 
     /// Banded ring deposits give every cell the same bits and the same count
