@@ -421,7 +421,7 @@ impl Ranger {
         // positive frequencies doubled, the negative ones 0. The segment is
         // real, so its bins 0..=n/2 come from a real-input FFT (about half a
         // complex one; the values differ from the complex FFT's at f32
-        // rounding level; BENCHMARKS.md "Session 12"). Each value of the
+        // rounding level; BENCHMARKS.md "Sixth round"). Each value of the
         // engine's buffer is written once (a fresh zeroed 512 KB buffer per
         // chirp cost a memset and page faults).
         let half = nfft / 2;

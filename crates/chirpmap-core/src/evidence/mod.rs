@@ -611,6 +611,7 @@ fn add_ring_span(row: &mut [f64], spec: &GridSpec, prep: &Prep, ring_logodds: f6
     let y = spec.y_min_m + (j as f64 + 0.5) * spec.cell_m;
     let (dya, dyb) = (y - e.focus_a.y, y - e.focus_b.y);
     let (dya2, dyb2, two_a) = (dya * dya, dyb * dyb, 2.0 * e.semi_major_m);
+    debug_assert!(hi < row.len(), "span {lo}..={hi} past the row's {} cells", row.len());
     let Some(span) = row.get_mut(lo..=hi) else { return };
     // Column numbers as `base + k` with k an i32, whose conversion to f64
     // has a packed instruction (a usize's has none before AVX-512, and it
@@ -627,15 +628,16 @@ fn add_ring_span(row: &mut [f64], spec: &GridSpec, prep: &Prep, ring_logodds: f6
     }
 }
 
-/// `e^x` for `x ≤ 0`, within 2 ulp of `f64::exp` down to −700 (below, the
+/// `e^x` for `x ≤ 0`, within 3 ulp of `f64::exp` down to −700 (the worst
+/// near `r = ±ln 2 / 2`, found by a review in float64 emulation) (below, the
 /// value at −700, 1e-304). Hand-written because libm's `exp` is a call the
-/// ring loop cannot vectorise (13 % of a Table I 1 ms `simulate` with the
+/// ring loop cannot vectorise (15.5 % of a Table I 1 ms `simulate` with the
 /// evidence mapper) and no maintained crate offers a portable f64 `exp` for
 /// the baseline x86-64 target. Cody and Waite's reduction (1980):
 /// `x = k·ln 2 + r`, `|r| ≤ ln 2 / 2`, with ln 2 split in fdlibm's two parts
 /// so that `k·LN2_HI` is exact; `k` rounded by adding 1.5·2^52, which leaves it
 /// in the low mantissa bits; `e^r` by its Taylor series to degree 12
-/// (remainder < 2e-16 relative); `2^k` built in the exponent field.
+/// (remainder ~2.4e-16 relative at |r| = ln 2 / 2); `2^k` built in the exponent field.
 #[inline]
 fn exp_nonpositive(x: f64) -> f64 {
     const ROUND: f64 = 6_755_399_441_055_744.0; // 1.5 · 2^52
