@@ -698,7 +698,8 @@ mod tests {
     }
 
     /// The ring's `exp` against libm's (the oracle): relative error ≤ 2 ε on
-    /// uniform draws from 0 down to −700 (3 ulp occurs near r = ±ln 2 / 2), the value at −700 below it, exactly 1 at 0.
+    /// uniform draws from 0 down to −700 (3 ulp occurs near r = ±ln 2 / 2),
+    /// the value at −700 below it, exactly 1 at 0.
     #[test]
     fn exp_nonpositive_is_libms_exp() {
         let mut r = 0x9e37_79b9_7f4a_7c15_u64;
