@@ -572,11 +572,12 @@ fn deposit_rings(grid: &mut Grid, rings: &[&Prep], params: &EvidenceParams) -> R
     if spec.nx == 0 || spec.ny == 0 {
         return Ok(0);
     }
+    let arch = pulp::Arch::new();
     let n = grid
         .data
         .par_chunks_mut(BAND_ROWS * spec.nx)
         .enumerate()
-        .map(|(b, cells)| {
+        .map_init(RingCells::default, |scratch, (b, cells)| {
             let rows = b * BAND_ROWS..(b * BAND_ROWS + cells.len() / spec.nx);
             let mut n = 0u64;
             for (prep, band) in rings.iter().zip(&bands) {
@@ -585,11 +586,12 @@ fn deposit_rings(grid: &mut Grid, rings: &[&Prep], params: &EvidenceParams) -> R
                 if hi < rows.start || lo >= rows.end {
                     continue;
                 }
-                band.spans_in_rows(&spec, rows.clone(), |j, lo, hi| {
-                    let row = (j - rows.start) * spec.nx;
-                    add_ring_span(&mut cells[row..row + spec.nx], &spec, prep, params.ring_logodds, j, lo, hi);
-                    n += (hi - lo + 1) as u64;
-                });
+                scratch.gather(band, &spec, prep, rows.clone());
+                scratch.weigh(arch, prep, params.ring_logodds);
+                for (&k, &w) in scratch.at.iter().zip(&scratch.w) {
+                    cells[k] += w;
+                }
+                n += scratch.at.len() as u64;
             }
             n
         })
@@ -597,34 +599,132 @@ fn deposit_rings(grid: &mut Grid, rings: &[&Prep], params: &EvidenceParams) -> R
     Ok(n)
 }
 
-/// Adds the ring of `prep` to cells `lo..=hi` of grid row `j` (`row`):
-/// `ring_logodds · exp(−f² / 2σ²)` with `f` the cell centre's focal excess.
-/// The distances to the foci are `sqrt(dx² + dy²)`, not `hypot`: a libm
-/// call per distance was 14 % of a Table I 1 ms `simulate` with the evidence
-/// mapper, and grid coordinates are far from where `hypot`'s overflow
-/// guard matters. The results differ from `Ellipse::focal_excess`'s in the
-/// last bits (test `ring_weights_are_the_focal_excess_gaussian`), and so
-/// do those of [`exp_nonpositive`].
-fn add_ring_span(row: &mut [f64], spec: &GridSpec, prep: &Prep, ring_logodds: f64, j: usize, lo: usize, hi: usize) {
-    let e = &prep.ellipse;
-    let inv2s2 = 1.0 / (2.0 * prep.sigma_m * prep.sigma_m);
+/// One ring's cells in a band of grid rows, gathered from its spans so that
+/// their weights are one long loop. Computed span by span, the weights cost
+/// ~20 ns a cell on Table I at 1 ms (spans of a few cells): each short loop
+/// ended in a mispredicted branch with the square roots' and the
+/// polynomial's latency exposed; one loop over all of a ring's cells keeps
+/// several cells in flight (issue 14).
+#[derive(Debug, Default)]
+struct RingCells {
+    /// Index of each cell in the band's slice.
+    at: Vec<usize>,
+    /// Cell centre x (m).
+    x: Vec<f64>,
+    /// Squared y distances of the cell's row to the two foci (m²).
+    dya2: Vec<f64>,
+    dyb2: Vec<f64>,
+    /// The cell's ring weight.
+    w: Vec<f64>,
+}
+
+impl RingCells {
+    /// The cells of `band` in grid rows `rows` (the first of which is the
+    /// band slice's row 0), in span order.
+    fn gather(&mut self, band: &Band, spec: &GridSpec, prep: &Prep, rows: std::ops::Range<usize>) {
+        self.at.clear();
+        self.x.clear();
+        self.dya2.clear();
+        self.dyb2.clear();
+        let e = &prep.ellipse;
+        band.spans_in_rows(spec, rows.clone(), |j, lo, hi| {
+            let (dya2, dyb2) = row_focus_dy2(spec, e, j);
+            let row = (j - rows.start) * spec.nx;
+            let len = hi - lo + 1;
+            self.at.extend(row + lo..=row + hi);
+            self.x.extend((lo..=hi).map(|i| cell_centre_x(spec, i as f64)));
+            self.dya2.extend(std::iter::repeat_n(dya2, len));
+            self.dyb2.extend(std::iter::repeat_n(dyb2, len));
+        });
+    }
+    /// The weights of the gathered cells.
+    fn weigh(&mut self, arch: pulp::Arch, prep: &Prep, ring_logodds: f64) {
+        self.w.resize(self.x.len(), 0.0);
+        arch.dispatch(Weigh { cells: self, k: RingKernel::of(prep, ring_logodds) });
+    }
+}
+
+/// [`RingCells::weigh`]'s loop, compiled for the widest vectors the CPU has
+/// ([`pulp`]'s runtime dispatch: AVX-512 or AVX2, where the baseline x86-64
+/// target has 2-lane SSE2). Each operation is IEEE-exact and none is fused
+/// (Rust never contracts `a * b + c`), so the weights are the same bits on
+/// every path (test `banded_rings_are_ring_after_ring` compares with the
+/// baseline build's span-by-span oracle). The polynomial's dependency chain
+/// bounds the loop; wider lanes share it among more cells.
+struct Weigh<'a> {
+    cells: &'a mut RingCells,
+    k: RingKernel,
+}
+
+impl pulp::WithSimd for Weigh<'_> {
+    type Output = ();
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) {
+        let Weigh { cells, k } = self;
+        let inputs = cells.x.iter().zip(&cells.dya2).zip(&cells.dyb2);
+        for (w, ((&x, &dya2), &dyb2)) in cells.w.iter_mut().zip(inputs) {
+            *w = k.weight(x, dya2, dyb2);
+        }
+    }
+}
+
+/// Cell centre x (m) of column `i` (an integer-valued f64).
+#[inline]
+fn cell_centre_x(spec: &GridSpec, i: f64) -> f64 {
+    spec.x_min_m + (i + 0.5) * spec.cell_m
+}
+
+/// Squared y distances (m²) from grid row `j`'s cell centres to the foci.
+#[inline]
+fn row_focus_dy2(spec: &GridSpec, e: &Ellipse, j: usize) -> (f64, f64) {
     let y = spec.y_min_m + (j as f64 + 0.5) * spec.cell_m;
     let (dya, dyb) = (y - e.focus_a.y, y - e.focus_b.y);
-    let (dya2, dyb2, two_a) = (dya * dya, dyb * dyb, 2.0 * e.semi_major_m);
-    debug_assert!(hi < row.len(), "span {lo}..={hi} past the row's {} cells", row.len());
-    let Some(span) = row.get_mut(lo..=hi) else { return };
-    // Column numbers as `base + k` with k an i32, whose conversion to f64
-    // has a packed instruction (a usize's has none before AVX-512, and it
-    // kept the loop scalar); both parts are exact, so x is the cell centre.
-    const PIECE: usize = 1 << 16;
-    for (p, piece) in span.chunks_mut(PIECE).enumerate() {
-        let base = (lo + p * PIECE) as f64;
-        for (k, cell) in (0i32..).zip(piece.iter_mut()) {
-            let x = spec.x_min_m + (base + f64::from(k) + 0.5) * spec.cell_m;
-            let (dxa, dxb) = (x - e.focus_a.x, x - e.focus_b.x);
-            let f = (dxa * dxa + dya2).sqrt() + (dxb * dxb + dyb2).sqrt() - two_a;
-            *cell += ring_logodds * exp_nonpositive(-f * f * inv2s2);
+    (dya * dya, dyb * dyb)
+}
+
+/// One ring's constants: `ring_logodds · exp(−f² / 2σ²)` with `f` the cell
+/// centre's focal excess. The distances to the foci are `sqrt(dx² + dy²)`,
+/// not `hypot`: a libm call per distance was 14 % of a Table I 1 ms
+/// `simulate` with the evidence mapper, and grid coordinates are far from
+/// where `hypot`'s overflow guard matters. The results differ from
+/// `Ellipse::focal_excess`'s in the last bits (test
+/// `ring_weights_are_the_focal_excess_gaussian`), and so do those of
+/// [`exp_nonpositive`].
+struct RingKernel {
+    fa_x: f64,
+    fb_x: f64,
+    two_a: f64,
+    inv2s2: f64,
+    ring_logodds: f64,
+}
+
+impl RingKernel {
+    fn of(prep: &Prep, ring_logodds: f64) -> Self {
+        let e = &prep.ellipse;
+        RingKernel {
+            fa_x: e.focus_a.x,
+            fb_x: e.focus_b.x,
+            two_a: 2.0 * e.semi_major_m,
+            inv2s2: 1.0 / (2.0 * prep.sigma_m * prep.sigma_m),
+            ring_logodds,
         }
+    }
+    #[inline(always)]
+    fn weight(&self, x: f64, dya2: f64, dyb2: f64) -> f64 {
+        let (dxa, dxb) = (x - self.fa_x, x - self.fb_x);
+        let f = (dxa * dxa + dya2).sqrt() + (dxb * dxb + dyb2).sqrt() - self.two_a;
+        self.ring_logodds * exp_nonpositive(-f * f * self.inv2s2)
+    }
+}
+
+/// Adds the ring of `prep` to cells `lo..=hi` of grid row `j` (`row`), span
+/// by span: the tests' oracle for [`deposit_rings`]' gathered cells.
+#[cfg(test)]
+fn add_ring_span(row: &mut [f64], spec: &GridSpec, prep: &Prep, ring_logodds: f64, j: usize, lo: usize, hi: usize) {
+    let k = RingKernel::of(prep, ring_logodds);
+    let (dya2, dyb2) = row_focus_dy2(spec, &prep.ellipse, j);
+    for (i, cell) in row[lo..=hi].iter_mut().enumerate() {
+        *cell += k.weight(cell_centre_x(spec, (lo + i) as f64), dya2, dyb2);
     }
 }
 
@@ -638,7 +738,7 @@ fn add_ring_span(row: &mut [f64], spec: &GridSpec, prep: &Prep, ring_logodds: f6
 /// so that `k·LN2_HI` is exact; `k` rounded by adding 1.5·2^52, which leaves it
 /// in the low mantissa bits; `e^r` by its Taylor series to degree 12
 /// (remainder ~2.4e-16 relative at |r| = ln 2 / 2); `2^k` built in the exponent field.
-#[inline]
+#[inline(always)]
 fn exp_nonpositive(x: f64) -> f64 {
     const ROUND: f64 = 6_755_399_441_055_744.0; // 1.5 · 2^52
     // fdlibm's ln2_hi (its low 21 mantissa bits zero) and ln2_lo.
