@@ -171,6 +171,7 @@ impl Tangents {
         (rho, slope)
     }
     /// Far tangent offsets of every echo for the unit normal `n`.
+    #[inline(always)]
     fn offsets(&self, n: Point, out: &mut [f64]) {
         let it = self.cos_t.iter().zip(&self.sin_t).zip(self.a2.iter().zip(&self.b2)).zip(self.cx.iter().zip(&self.cy));
         for (o, (((&c, &s), (&a2, &b2)), (&cx, &cy))) in out.iter_mut().zip(it) {
@@ -803,6 +804,53 @@ pub(crate) fn check_vote_memory(spec: GridSpec, params: &EvidenceParams) -> Resu
     Ok(())
 }
 
+/// One angle's row of the Hough vote ([`hough_peaks`]), compiled for the
+/// widest vectors the CPU has ([`pulp`]'s runtime dispatch: AVX-512 or AVX2,
+/// where the baseline x86-64 target has 2-lane SSE2). No operation is fused,
+/// so the votes are the same bits either way.
+struct VoteRow<'a> {
+    tan: &'a Tangents,
+    n: Point,
+    rho_buf: &'a mut [f64],
+    row: &'a mut [f32],
+    half: &'a [f64],
+    inv_half: &'a [f64],
+    centres: &'a [f64],
+    r_max: f64,
+    inv_bin: f64,
+    window: usize,
+}
+
+impl pulp::WithSimd for VoteRow<'_> {
+    type Output = ();
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) {
+        let VoteRow { tan, n, rho_buf, row, half, inv_half, centres, r_max, inv_bin, window } = self;
+        let n_rho = row.len();
+        tan.offsets(n, rho_buf);
+        for ((&rho, &half), &inv_half) in rho_buf.iter().zip(half).zip(inv_half) {
+            // By a multiplication rather than a division: rounding can move
+            // `lo` or `hi` by one only when a bin centre lies within an ulp
+            // of the band's edge, where its weight is 0 or ~1e-16 (and the
+            // window keeps a spare cell past the band either way).
+            let lo = ceil_fast((rho - half + r_max) * inv_bin).max(0.0);
+            let hi = floor_fast((rho + half + r_max) * inv_bin).min(n_rho as f64 - 1.0);
+            if lo > hi {
+                continue;
+            }
+            let first = lo as usize;
+            // A fixed-length window (cells past `hi` get a weight of exactly
+            // 0 or, by rounding, far below one f32 ulp of any peak) avoids a
+            // data-dependent loop length.
+            let end = (first + window).min(n_rho);
+            for (v, &x) in row[first..end].iter_mut().zip(&centres[first..]) {
+                let d = (x - rho).abs();
+                *v += (1.0 - d * inv_half).max(0.0) as f32;
+            }
+        }
+    }
+}
+
 /// The Hough vote and its peaks, strongest first (ties in cell order), at
 /// most 4 × `max_surfaces`: (votes, angle bin, offset bin).
 fn hough_peaks(ctx: &Ctx, tan: &Tangents, g: &Geom) -> Vec<(f32, usize, usize)> {
@@ -827,31 +875,13 @@ fn hough_peaks(ctx: &Ctx, tan: &Tangents, g: &Geom) -> Vec<(f32, usize, usize)> 
     // whatever the thread count).
     use rayon::prelude::*;
     let rows = acc.par_chunks_mut(n_rho).zip(trig.par_iter());
+    let arch = pulp::Arch::new();
+    let (half, inv_half, centres) = (&half[..], &inv_half[..], &centres[..]);
     rows.for_each_init(
         || vec![0.0; tan.len()],
         |rho_buf, (row, &(nx, ny))| {
-            tan.offsets(Point::new(nx, ny), rho_buf);
-            for ((&rho, &half), &inv_half) in rho_buf.iter().zip(&half).zip(&inv_half) {
-                // By a multiplication rather than a division: rounding can move
-                // `lo` or `hi` by one only when a bin centre lies within an ulp
-                // of the band's edge, where its weight is 0 or ~1e-16 (and the
-                // window keeps a spare cell past the band either way).
-                let lo = ceil_fast((rho - half + r_max) * inv_bin).max(0.0);
-                let hi = floor_fast((rho + half + r_max) * inv_bin).min(n_rho as f64 - 1.0);
-                if lo > hi {
-                    continue;
-                }
-                let first = lo as usize;
-                // A fixed-length window (cells past `hi` get a weight of exactly
-                // 0 or, by rounding, far below one f32 ulp of any peak) avoids a
-                // data-dependent loop length.
-                let end = (first + window).min(n_rho);
-                let _ = hi;
-                for (v, &x) in row[first..end].iter_mut().zip(&centres[first..]) {
-                    let d = (x - rho).abs();
-                    *v += (1.0 - d * inv_half).max(0.0) as f32;
-                }
-            }
+            let n = Point::new(nx, ny);
+            arch.dispatch(VoteRow { tan, n, rho_buf, row, half, inv_half, centres, r_max, inv_bin, window });
         },
     );
     // Peaks: votes ≥ min_support and maximal among the 8 neighbours
