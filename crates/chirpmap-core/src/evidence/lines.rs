@@ -221,6 +221,22 @@ fn densest(vals: &[f64], width: f64) -> (usize, f64) {
     (best, mean)
 }
 
+/// [`Tangents::offsets`] compiled for the widest vectors the CPU has
+/// ([`pulp`]'s runtime dispatch; the same bits, as in [`VoteRow`]).
+struct Offsets<'a> {
+    tan: &'a Tangents,
+    n: Point,
+    out: &'a mut [f64],
+}
+
+impl pulp::WithSimd for Offsets<'_> {
+    type Output = ();
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) {
+        self.tan.offsets(self.n, self.out);
+    }
+}
+
 /// Cells per block of the peak search's skip test.
 const PEAK_BLOCK: usize = 32;
 
@@ -249,7 +265,7 @@ impl SortedOffsets {
     /// [`Tangents::subset`], so computed in one straight loop).
     fn at(&mut self, local: &Tangents, n: Point) {
         self.raw.resize(local.len(), 0.0);
-        local.offsets(n, &mut self.raw);
+        pulp::Arch::new().dispatch(Offsets { tan: local, n, out: &mut self.raw });
         self.vals.clear();
         self.vals.extend(self.order.iter().map(|&i| self.raw[i]));
         for i in 1..self.vals.len() {
