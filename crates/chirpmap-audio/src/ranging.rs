@@ -24,7 +24,7 @@
 
 use crate::detect::ChirpTemplate;
 use crate::filter::SavitzkyGolay;
-use crate::spectrum::{FftCache, hann, magnitude_bins, magnitude_spectrum, parabolic_offset, peak_in};
+use crate::spectrum::{FftCache, abs_f64, hann, magnitude_bins, magnitude_spectrum, parabolic_offset, peak_in};
 use chirpmap_core::{Point, Sweep};
 use rustfft::num_complex::Complex32;
 use serde::{Deserialize, Serialize};
@@ -190,6 +190,11 @@ pub struct Ranger {
     /// least-squares solve per window position, which per frame was ~4 % of a
     /// gap run's CPU (issue 14).
     savgol: HashMap<usize, Arc<SavitzkyGolay>>,
+    /// The template the caches above were built for (its sweep's start,
+    /// end and duration, the rate, the length): `spectra`, `models` and
+    /// `grams` are keyed by sizes only, so another template empties them
+    /// ([`Ranger::use_template`]) rather than reusing another chirp's spectrum.
+    template: Option<[u64; 5]>,
 }
 
 /// Frames per chirp in the gap method (evenly spread; the median is taken).
@@ -204,6 +209,25 @@ impl Ranger {
         Self::default()
     }
 
+    /// Empties the template-dependent caches when `tpl` is not the template
+    /// they were built for.
+    fn use_template(&mut self, tpl: &ChirpTemplate) {
+        let c = &tpl.chirp;
+        let key = [
+            c.f_start_hz().to_bits(),
+            c.f_end_hz().to_bits(),
+            c.duration_s().to_bits(),
+            tpl.sample_rate_hz.to_bits(),
+            tpl.len() as u64,
+        ];
+        if self.template != Some(key) {
+            self.spectra.clear();
+            self.models.clear();
+            self.grams.clear();
+            self.template = Some(key);
+        }
+    }
+
     /// Estimates Δd for the chirp whose direct arrival starts at sample
     /// `onset` of `x` (high-passed). `None` when no reflection stands out or
     /// the chirp does not fit in `x`.
@@ -215,6 +239,7 @@ impl Ranger {
         tpl: &ChirpTemplate,
         lim: &RangeLimits,
     ) -> Option<Estimate> {
+        self.use_template(tpl);
         match method {
             Method::Gap => self.gap(x, onset, tpl, lim),
             Method::Matched => self.matched(x, onset, tpl, lim),
@@ -270,6 +295,7 @@ impl Ranger {
         tpl: &ChirpTemplate,
         lim: &RangeLimits,
     ) -> Option<(f64, f64)> {
+        self.use_template(tpl);
         let fs = tpl.sample_rate_hz;
         let rate = tpl.rate_abs();
         let a = lim.speed_of_sound_mps;
@@ -373,6 +399,7 @@ impl Ranger {
         tpl: &ChirpTemplate,
         lim: &RangeLimits,
     ) -> Option<(f64, f64)> {
+        self.use_template(tpl);
         let fs = tpl.sample_rate_hz;
         let a = lim.speed_of_sound_mps;
         let rate = tpl.rate_abs();
@@ -435,12 +462,7 @@ impl Ranger {
         buf.resize(nfft, Complex32::new(0.0, 0.0));
         cache.inverse(buf);
         let n_lags = (seg.len() + 1).saturating_sub(m).min(nfft);
-        // |c| in f64 from the f32 parts (exact squares, one rounding), as in
-        // `magnitude_bins`: `norm` is a hypotf call per lag.
-        buf[..n_lags]
-            .iter()
-            .map(|c| (f64::from(c.re) * f64::from(c.re) + f64::from(c.im) * f64::from(c.im)).sqrt())
-            .collect()
+        buf[..n_lags].iter().map(abs_f64).collect()
     }
 
     fn matched(&mut self, x: &[f32], onset: usize, tpl: &ChirpTemplate, lim: &RangeLimits) -> Option<Estimate> {
@@ -623,11 +645,51 @@ pub fn delta_d_for_wall(speaker: Point, mic: Point, wall_normal: Point, h_m: f64
 #[cfg(test)]
 mod tests {
 
+    /// One engine ranging chirps of two templates of the same length (so the
+    /// same FFT sizes) in turn gives what a fresh engine gives for each: its
+    /// cached spectra and direct-path models are the current template's.
+    /// With the caches keyed by size only, the second template's matched
+    /// filter used the first one's spectrum.
+    #[test]
+    fn an_engine_ranges_another_template_as_a_fresh_one() {
+        let fs = 16_000.0;
+        let tpls = [(6000.0, 1000.0), (1000.0, 7000.0)]
+            .map(|(f0, f1)| ChirpTemplate::new(chirpmap_core::LinearChirp::new(f0, f1, 0.25).unwrap(), fs).unwrap());
+        let lim = RangeLimits::for_chirp(0.25, 343.0);
+        let onset = 800;
+        // The direct sound and an echo 3.1 m longer, at half its amplitude.
+        let delay = (3.1 / 343.0 * fs).round() as usize;
+        let signal = |tpl: &ChirpTemplate| {
+            let mut x = vec![0.0f32; onset + tpl.len() + delay + 2000];
+            for (i, v) in tpl.real.iter().enumerate() {
+                x[onset + i] += v;
+                x[onset + delay + i] += 0.5 * v;
+            }
+            x
+        };
+        let mut reused = Ranger::new();
+        for round in 0..2 {
+            for tpl in &tpls {
+                let x = signal(tpl);
+                let mut fresh = Ranger::new();
+                for m in Method::ALL {
+                    let want = fresh.estimate(m, &x, onset, tpl, &lim);
+                    assert!(want.is_some(), "{m:?}: the echo is found");
+                    let got = reused.estimate(m, &x, onset, tpl, &lim);
+                    assert_eq!(got, want, "round {round}, {:?}, {m:?}", tpl.chirp);
+                }
+            }
+        }
+    }
+
     /// The matched envelope from a real-input FFT against the complex-FFT
     /// path it replaced (the oracle: the segment as complex values, the
-    /// analytic spectrum built over all n bins, `norm` per lag), on a chirp
+    /// analytic spectrum built over all n bins, `norm` per lag), on chirps
     /// with an echo and noise, for segment lengths below, at and above a
-    /// power of two. The two differ by f32 rounding only: ≤ 1e-5 of the peak.
+    /// power of two. The two differ by f32 rounding only: ≤ 1e-5 of the peak
+    /// for a mid-band chirp, ≤ 1e-6 for a full-band one over a DC offset,
+    /// where doubling bin 0 or bin n/2 by mistake moves the envelope by
+    /// 3e-4 or 3e-6 of the peak (both checked to fail).
     #[test]
     fn real_input_envelope_is_the_complex_paths() {
         fn oracle(seg: &[f32], tpl: &ChirpTemplate, nfft: usize) -> Vec<f64> {
@@ -649,14 +711,19 @@ mod tests {
             let n_lags = (seg.len() + 1).saturating_sub(tpl.len()).min(nfft);
             buf[..n_lags].iter().map(|c| f64::from(c.norm())).collect()
         }
-        let chirp = chirpmap_core::LinearChirp::new(6000.0, 1000.0, 0.02).unwrap();
-        let tpl = ChirpTemplate::new(chirp, 16_000.0).unwrap();
-        let m = tpl.len();
         let mut next = crate::test_rng::xorshift(11);
         let mut ranger = Ranger::new();
-        for extra in [200usize, 512 - 320, 700] {
+        // A mid-band chirp, and a full-band one (down to 5 Hz and up to
+        // 7.99 kHz of 8 kHz) over a DC offset, whose spectra reach the edge
+        // bins 0 and n/2 that the analytic spectrum does not double.
+        let cases = [((6000.0, 1000.0), 0.0, 1e-5), ((5.0, 7990.0), 0.2, 1e-6)];
+        for (((f0, f1), dc, tol), extra) in cases.into_iter().flat_map(|c| [200usize, 512 - 320, 700].map(|e| (c, e))) {
+            let chirp = chirpmap_core::LinearChirp::new(f0, f1, 0.02).unwrap();
+            let tpl = ChirpTemplate::new(chirp, 16_000.0).unwrap();
+            let m = tpl.len();
             let len = m + extra;
-            let mut seg: Vec<f32> = (0..len).map(|_| (next() % 2001) as f32 / 1000.0 - 1.0).map(|v| 0.01 * v).collect();
+            let mut seg: Vec<f32> =
+                (0..len).map(|_| (next() % 2001) as f32 / 1000.0 - 1.0).map(|v| 0.01 * v + dc).collect();
             for (i, v) in tpl.real.iter().enumerate() {
                 seg[i + 20] += v;
                 if let Some(s) = seg.get_mut(i + 90) {
@@ -664,13 +731,14 @@ mod tests {
                 }
             }
             let nfft = len.next_power_of_two();
+            ranger.use_template(&tpl);
             let got = ranger.matched_envelope(&seg, &tpl, nfft);
             let want = oracle(&seg, &tpl, nfft);
             assert_eq!(got.len(), want.len(), "segment of {len}");
             let peak = want.iter().copied().fold(0.0, f64::max);
             assert!(peak > 0.0);
             let worst = got.iter().zip(&want).map(|(g, w)| (g - w).abs()).fold(0.0, f64::max);
-            assert!(worst <= 1e-5 * peak, "segment of {len}: worst difference {worst} of peak {peak}");
+            assert!(worst <= tol * peak, "{f0}-{f1} Hz, segment of {len}: worst difference {worst} of peak {peak}");
             // The echo is found where the oracle finds it.
             let arg = |v: &[f64]| v.iter().enumerate().skip(40).max_by(|a, b| a.1.total_cmp(b.1)).map(|p| p.0);
             assert_eq!(arg(&got), arg(&want));

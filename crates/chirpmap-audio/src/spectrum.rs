@@ -157,13 +157,15 @@ pub fn magnitude_bins(cache: &mut FftCache, frame: &[f32], nfft: usize, bins: st
     let Some(out) = cache.forward_real(frame.iter().zip(w.iter()).map(|(x, wi)| x * wi), n) else {
         return vec![0.0; hi.saturating_sub(lo)];
     };
-    // |c| in f64 from the f32 parts: exact squares and one rounding, where
-    // `norm` (hypotf) is a libm call per bin (8 % of a gap run's time).
-    out.get(lo..hi)
-        .unwrap_or_default()
-        .iter()
-        .map(|c| (f64::from(c.re) * f64::from(c.re) + f64::from(c.im) * f64::from(c.im)).sqrt())
-        .collect()
+    out.get(lo..hi).unwrap_or_default().iter().map(abs_f64).collect()
+}
+
+/// `|c|` in f64 from the f32 parts: exact squares and one rounding, where
+/// `Complex32::norm` (hypotf) is a libm call per bin (8 % of a gap run's
+/// time); the spectra's and the matched filter's envelope.
+#[inline]
+pub(crate) fn abs_f64(c: &Complex32) -> f64 {
+    (f64::from(c.re) * f64::from(c.re) + f64::from(c.im) * f64::from(c.im)).sqrt()
 }
 
 /// STFT magnitude (frames × bins) with a Hann window of `frame_len`, hop
