@@ -205,6 +205,7 @@ impl SpanBands {
     }
 
     /// Records the spans of `e` with weight `w`.
+    #[inline(always)]
     fn deal(&mut self, e: &Ellipse, spec: &GridSpec, w: f64) {
         let k = self.weights.len() as u32;
         self.weights.push(w);
@@ -432,12 +433,31 @@ impl AccumulationMapper {
         }
         let spec = self.grid.spec;
         let per_part = batch.len().div_ceil(self.parts.len());
+        let arch = pulp::Arch::new();
         self.parts.par_iter_mut().zip(batch.par_chunks(per_part)).for_each(|(part, chunk)| {
-            for (e, w) in chunk {
-                part.deal(e, &spec, *w);
-            }
+            arch.dispatch(Deal { part, chunk, spec: &spec });
         });
         self.cells_updated += flush_parts(&mut self.parts, &spec, &mut self.grid.data);
+    }
+}
+
+/// A chunk of ellipses dealt into one part's span lists
+/// ([`SpanBands::deal`]), compiled for the widest vectors the CPU has
+/// ([`pulp`]'s runtime dispatch): the rasteriser's branch-free row passes.
+/// No operation is fused, so the spans are the same either way.
+struct Deal<'a> {
+    part: &'a mut SpanBands,
+    chunk: &'a [(Ellipse, f64)],
+    spec: &'a GridSpec,
+}
+
+impl pulp::WithSimd for Deal<'_> {
+    type Output = ();
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) {
+        for (e, w) in self.chunk {
+            self.part.deal(e, self.spec, *w);
+        }
     }
 }
 

@@ -116,6 +116,7 @@ impl RowBlock {
 /// starts after the first). The few rows that differ (the bottom and top rows
 /// hold one arc; the leftmost and rightmost points widen their rows) are
 /// patched in between, so every loop over rows is branch-free and vectorises.
+#[inline(always)]
 pub fn for_each_entered_block(e: &Ellipse, spec: &GridSpec, mut block: impl FnMut(&RowBlock)) {
     if spec.nx as f64 <= MAX_FAST_COLS {
         blocks(e, spec, block);
