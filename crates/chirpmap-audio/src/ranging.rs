@@ -175,6 +175,41 @@ pub(crate) fn above_direct(v: &[f64], model: &[f64], scale: f64, ratio: f64, lo:
 
 const MODEL_SPREAD: usize = 3;
 
+/// Samples of each waveform in a [`template_fingerprint`].
+const FINGERPRINT_SAMPLES: usize = 64;
+
+/// What tells templates apart for [`Ranger`]'s caches: the sweep's start,
+/// end and duration, the rate, the length, and a hash of 64 evenly spaced
+/// samples of each waveform (templates with one description can differ in
+/// their samples: Doppler-scaled ones, exponential sweeps matched through a
+/// linear description). A sample, not every one: the engine checks on every
+/// gap frame, where hashing a whole second of samples would cost as much as
+/// the frame.
+fn template_fingerprint(tpl: &ChirpTemplate) -> [u64; 6] {
+    let c = &tpl.chirp;
+    // FNV-1a over the sampled values' bits.
+    let mut h = 0xcbf2_9ce4_8422_2325u64;
+    let mut eat = |bits: u32| {
+        h ^= u64::from(bits);
+        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    };
+    let step = tpl.real.len().div_ceil(FINGERPRINT_SAMPLES).max(1);
+    tpl.real.iter().step_by(step).for_each(|v| eat(v.to_bits()));
+    let step = tpl.mix.len().div_ceil(FINGERPRINT_SAMPLES).max(1);
+    tpl.mix.iter().step_by(step).for_each(|v| {
+        eat(v.re.to_bits());
+        eat(v.im.to_bits());
+    });
+    [
+        c.f_start_hz().to_bits(),
+        c.f_end_hz().to_bits(),
+        c.duration_s().to_bits(),
+        tpl.sample_rate_hz.to_bits(),
+        tpl.len() as u64,
+        h,
+    ]
+}
+
 /// Ranging engine with cached FFT plans and direct-path responses.
 #[derive(Debug, Default)]
 pub struct Ranger {
@@ -190,11 +225,11 @@ pub struct Ranger {
     /// least-squares solve per window position, which per frame was ~4 % of a
     /// gap run's CPU (issue 14).
     savgol: HashMap<usize, Arc<SavitzkyGolay>>,
-    /// The template the caches above were built for (its sweep's start,
-    /// end and duration, the rate, the length): `spectra`, `models` and
-    /// `grams` are keyed by sizes only, so another template empties them
+    /// Fingerprint of the template the caches above were built for
+    /// ([`template_fingerprint`]): `spectra`, `models` and `grams` are keyed
+    /// by sizes only, so another template empties them
     /// ([`Ranger::use_template`]) rather than reusing another chirp's spectrum.
-    template: Option<[u64; 5]>,
+    template: Option<[u64; 6]>,
 }
 
 /// Frames per chirp in the gap method (evenly spread; the median is taken).
@@ -212,14 +247,7 @@ impl Ranger {
     /// Empties the template-dependent caches when `tpl` is not the template
     /// they were built for.
     fn use_template(&mut self, tpl: &ChirpTemplate) {
-        let c = &tpl.chirp;
-        let key = [
-            c.f_start_hz().to_bits(),
-            c.f_end_hz().to_bits(),
-            c.duration_s().to_bits(),
-            tpl.sample_rate_hz.to_bits(),
-            tpl.len() as u64,
-        ];
+        let key = template_fingerprint(tpl);
         if self.template != Some(key) {
             self.spectra.clear();
             self.models.clear();
@@ -645,11 +673,12 @@ pub fn delta_d_for_wall(speaker: Point, mic: Point, wall_normal: Point, h_m: f64
 #[cfg(test)]
 mod tests {
 
-    /// One engine ranging chirps of two templates of the same length (so the
-    /// same FFT sizes) in turn gives what a fresh engine gives for each: its
-    /// cached spectra and direct-path models are the current template's.
-    /// With the caches keyed by size only, the second template's matched
-    /// filter used the first one's spectrum.
+    /// One engine ranging chirps of three templates of the same length (so
+    /// the same FFT sizes; two of them with one description) in turn gives
+    /// what a fresh engine gives for each: its cached spectra and
+    /// direct-path models are the current template's. With the caches keyed
+    /// by size only, the second template's matched filter used the first
+    /// one's spectrum.
     #[test]
     fn an_engine_ranges_another_template_as_a_fresh_one() {
         let fs = 16_000.0;
@@ -667,6 +696,13 @@ mod tests {
             }
             x
         };
+        // A third with the first one's description and length but other
+        // samples (a sweep 2 % faster, as a Doppler-scaled template has).
+        let mut scaled = tpls[0].clone();
+        let fast = ChirpTemplate::new(chirpmap_core::LinearChirp::new(6120.0, 1020.0, 0.25).unwrap(), fs).unwrap();
+        scaled.real.clone_from(&fast.real);
+        scaled.mix.clone_from(&fast.mix);
+        let tpls = [tpls[0].clone(), tpls[1].clone(), scaled];
         let mut reused = Ranger::new();
         for round in 0..2 {
             for tpl in &tpls {

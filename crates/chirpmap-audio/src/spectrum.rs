@@ -160,7 +160,8 @@ pub fn magnitude_bins(cache: &mut FftCache, frame: &[f32], nfft: usize, bins: st
     out.get(lo..hi).unwrap_or_default().iter().map(abs_f64).collect()
 }
 
-/// `|c|` in f64 from the f32 parts: exact squares and one rounding, where
+/// `|c|` in f64 from the f32 parts: exact squares, a rounded sum and a
+/// rounded square root, where
 /// `Complex32::norm` (hypotf) is a libm call per bin (8 % of a gap run's
 /// time); the spectra's and the matched filter's envelope.
 #[inline]

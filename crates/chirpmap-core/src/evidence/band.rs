@@ -135,8 +135,7 @@ impl Band {
     ///
     /// Rows go in chunks: first each row's crossings of both ellipses, in
     /// cell units, in a loop without branches (the square roots and
-    /// divisions of many rows in flight, and vectorised), then the spans
-    /// from them. Row by row, each row's chain of a square root and four
+    /// divisions of many rows in flight at once), then the spans from them. Row by row, each row's chain of a square root and four
     /// divisions ran one at a time between unpredictable branches: 9.5 % of
     /// a Table I 1 ms `simulate` with the evidence mapper, walking the rings.
     /// The arithmetic is the same, so are the spans (test
@@ -248,8 +247,8 @@ impl Band {
 
 /// Where grid row `j`'s centre line crosses a filled ellipse, in cell units
 /// (`(x − x_min) / cell − 0.5`, so the cells whose centres lie inside are
-/// `ceil(lo)..=floor(hi)`); `hit` false when it misses, as [`row_interval`]
-/// gives `None`.
+/// `ceil(lo)..=floor(hi)`); `hit` false when it misses, where the
+/// row-by-row oracle's `row_interval` gives `None`.
 #[derive(Debug, Clone, Copy, Default)]
 struct Crossing {
     lo: f64,
@@ -257,8 +256,9 @@ struct Crossing {
     hit: bool,
 }
 
-/// An ellipse's implicit conic about its centre (as [`row_interval`] uses it),
-/// computed once per band instead of once per row (the same values).
+/// An ellipse's implicit conic about its centre (as the oracle's
+/// `row_interval` uses it), computed once per band instead of once per row
+/// (the same values).
 #[derive(Debug, Clone, Copy)]
 struct RowConic {
     cx: f64,
@@ -267,7 +267,9 @@ struct RowConic {
     qb: f64,
     qc: f64,
     qf: f64,
-    /// The ellipse has area and `qa > 0` ([`row_interval`]'s other tests).
+    /// The ellipse has area and `qa > 0` (`row_interval`'s other tests; a
+    /// NaN axis, which `Ellipse::new`'s finite inputs rule out, would fail
+    /// here where `row_interval` let it through).
     usable: bool,
 }
 
@@ -276,8 +278,8 @@ impl RowConic {
         let (qa, qb, qc, qf) = e.conic();
         RowConic { cx: e.center.x, cy: e.center.y, qa, qb, qc, qf, usable: e.semi_minor_m > 0.0 && qa > 0.0 }
     }
-    /// [`row_interval`] at row `j`'s centre line and [`centre_cols`]'
-    /// scaling, operation for operation, without a branch.
+    /// The oracle's `row_interval` at row `j`'s centre line and
+    /// `centre_cols`' scaling, operation for operation, without a branch.
     #[inline(always)]
     fn crossing(&self, spec: &GridSpec, j: usize) -> Crossing {
         let y = spec.y_min_m + (j as f64 + 0.5) * spec.cell_m;
@@ -295,7 +297,7 @@ impl RowConic {
     }
 }
 
-/// [`centre_cols`] from positions already in cell units.
+/// The oracle's `centre_cols` from positions already in cell units.
 #[inline(always)]
 fn cols_of(spec: &GridSpec, u_lo: f64, u_hi: f64) -> Option<(usize, usize)> {
     let lo = ceil(u_lo).max(0.0);
