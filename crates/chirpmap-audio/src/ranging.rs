@@ -294,7 +294,7 @@ impl Ranger {
         for k in 0..n_frames {
             let ts = if n_frames == 1 { t0 } else { t0 + (t1 - t0) * k as f64 / (n_frames - 1) as f64 };
             let off = (ts * fs).round() as usize;
-            if let Some((g, l)) = self.gap_frame(x, onset + off, off, frame, tpl, lim) {
+            if let Some((g, l)) = self.gap_frame_of_current(x, onset + off, off, frame, tpl, lim) {
                 gaps.push(g);
                 levels.push(l);
             }
@@ -324,6 +324,21 @@ impl Ranger {
         lim: &RangeLimits,
     ) -> Option<(f64, f64)> {
         self.use_template(tpl);
+        self.gap_frame_of_current(x, start, off, frame, tpl, lim)
+    }
+
+    /// [`Ranger::gap_frame`] for `tpl`, the template the caches were built
+    /// for ([`Ranger::use_template`] already called, as [`Ranger::estimate`]
+    /// does once per chirp for all its frames).
+    fn gap_frame_of_current(
+        &mut self,
+        x: &[f32],
+        start: usize,
+        off: usize,
+        frame: usize,
+        tpl: &ChirpTemplate,
+        lim: &RangeLimits,
+    ) -> Option<(f64, f64)> {
         let fs = tpl.sample_rate_hz;
         let rate = tpl.rate_abs();
         let a = lim.speed_of_sound_mps;

@@ -254,6 +254,8 @@ struct SortedOffsets {
     vals: Vec<f64>,
     /// Offsets in set order (scratch).
     raw: Vec<f64>,
+    /// The CPU's vector level, detected once for every scan angle.
+    arch: pulp::Arch,
 }
 
 impl SortedOffsets {
@@ -265,7 +267,7 @@ impl SortedOffsets {
     /// [`Tangents::subset`], so computed in one straight loop).
     fn at(&mut self, local: &Tangents, n: Point) {
         self.raw.resize(local.len(), 0.0);
-        pulp::Arch::new().dispatch(Offsets { tan: local, n, out: &mut self.raw });
+        self.arch.dispatch(Offsets { tan: local, n, out: &mut self.raw });
         self.vals.clear();
         self.vals.extend(self.order.iter().map(|&i| self.raw[i]));
         for i in 1..self.vals.len() {
