@@ -135,9 +135,10 @@ impl Band {
     ///
     /// Rows go in chunks: first each row's crossings of both ellipses, in
     /// cell units, in a loop without branches (the square roots and
-    /// divisions of many rows in flight at once), then the spans from them. Row by row, each row's chain of a square root and four
-    /// divisions ran one at a time between unpredictable branches: 9.5 % of
-    /// a Table I 1 ms `simulate` with the evidence mapper, walking the rings.
+    /// divisions of many rows in flight at once), then the spans from them.
+    /// Row by row, each row's chain of a square root and four divisions ran
+    /// one at a time between unpredictable branches: 9.5 % of a Table I 1 ms
+    /// `simulate` with the evidence mapper, walking the rings.
     /// The arithmetic is the same, so are the spans (test
     /// `chunked_spans_are_row_by_row`).
     #[inline(always)]
