@@ -188,3 +188,25 @@ fn bad_sweeps_fail_before_any_work() {
     assert_eq!(o.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&o.stderr).contains("different sweep"));
 }
+
+/// A sweep that cannot write sweep.toml (a file size limit of 0 kills it at
+/// the first byte, as a full disk stops a write) leaves no empty sweep.toml:
+/// it wrote one in place, and every later run there was refused as "a
+/// different sweep".
+#[cfg(unix)]
+#[test]
+fn a_sweep_stopped_while_writing_sweep_toml_leaves_none() {
+    let tmp = tempfile::tempdir().unwrap();
+    let sweep = write_sweep(tmp.path(), 1, 4);
+    let out = tmp.path().join("o");
+    let o = Command::new("sh")
+        .args(["-c", "ulimit -f 0; exec \"$0\" sweep \"$1\" --out \"$2\" --no-progress"])
+        .args([env!("CARGO_BIN_EXE_chirpmap"), &sweep, out.to_str().unwrap()])
+        .stdout(Stdio::null())
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    assert!(!out.join("sweep.toml").exists(), "an empty sweep.toml was left");
+    let o = chirpmap(&["sweep", &sweep, "--out", out.to_str().unwrap(), "--no-progress"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}

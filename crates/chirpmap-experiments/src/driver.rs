@@ -3,7 +3,10 @@
 
 use crate::error::ExperimentError;
 use crate::runner::execute;
-use crate::runs::{RUNS_FILE, RunMetrics, RunRow, RunsFile, SHARD_FILE, SWEEP_FILE, read_rows, write_sorted};
+use crate::runs::{
+    CUT_SHORT, RUNS_FILE, RunMetrics, RunRow, RunsFile, SHARD_FILE, SWEEP_FILE, read_rows, shard_file_is_cut,
+    sweep_file_is_cut, write_sorted,
+};
 use crate::summary::{ConfigSummary, summarise, summary_csv, summary_md};
 use crate::sweep::{Job, Plan, Shard, SweepDef};
 use chirpmap_core::Scene;
@@ -70,6 +73,9 @@ pub fn run_sweep(
 pub fn read_sweep_def(dir: &Path) -> Result<(String, SweepDef), ExperimentError> {
     let p = dir.join(SWEEP_FILE);
     let text = std::fs::read_to_string(&p).map_err(|e| ExperimentError::io(&p, e))?;
+    if text.trim().is_empty() {
+        return Err(ExperimentError::file(&p, format!("{CUT_SHORT}, not a sweep definition")));
+    }
     let def = SweepDef::from_toml_str(&text).map_err(|e| ExperimentError::file(&p, e.to_string()))?;
     Ok((text, def))
 }
@@ -77,10 +83,16 @@ pub fn read_sweep_def(dir: &Path) -> Result<(String, SweepDef), ExperimentError>
 /// `shard.txt` of a merged output: the whole sweep.
 const MERGED_SHARD: &str = "0/1\n";
 
-fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), ExperimentError> {
+/// Writes `path` whole or not at all (a hidden temporary file, then a
+/// rename): a full disk must not leave an empty sweep.toml or shard.txt,
+/// which every later run took for another sweep's.
+pub(crate) fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), ExperimentError> {
     let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
     let tmp = path.with_file_name(format!(".{name}.tmp"));
-    std::fs::write(&tmp, bytes).map_err(|e| ExperimentError::io(&tmp, e))?;
+    if let Err(e) = std::fs::write(&tmp, bytes) {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(ExperimentError::io(&tmp, e));
+    }
     std::fs::rename(&tmp, path).map_err(|e| ExperimentError::io(path, e))
 }
 
@@ -124,9 +136,13 @@ fn check_merge_out(inputs: &[&Path], out: &Path, sweep_text: &str) -> Result<(),
         Err(ExperimentError::Merge(format!("--out {} {why}; merge into a new or empty directory", out.display())))
     };
     match std::fs::read_to_string(out.join(SWEEP_FILE)) {
+        Ok(text) if text != sweep_text && (sweep_text.starts_with(&text) || sweep_file_is_cut(&text)) => {
+            refuse(&format!("holds a {SWEEP_FILE} that {CUT_SHORT}"))
+        }
         Ok(text) if text != sweep_text => refuse("holds another sweep (its sweep.toml differs)"),
         Ok(_) => match std::fs::read_to_string(out.join(SHARD_FILE)) {
             Ok(shard) if shard == MERGED_SHARD => Ok(()),
+            Ok(shard) if shard_file_is_cut(&shard) => refuse(&format!("holds a {SHARD_FILE} that {CUT_SHORT}")),
             Ok(shard) => refuse(&format!("holds shard {} of this sweep, not a merged output", shard.trim())),
             Err(_) => refuse("holds a sweep.toml without shard.txt, not a merged output"),
         },

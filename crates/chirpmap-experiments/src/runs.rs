@@ -1,8 +1,9 @@
 //! `runs.csv`: one row per finished run, streamed as runs finish so an
 //! interrupted sweep loses nothing, and read back to resume or merge.
 
+use crate::driver::write_atomic;
 use crate::error::ExperimentError;
-use crate::sweep::{Job, Plan, Shard};
+use crate::sweep::{Job, Plan, Shard, SweepDef};
 use std::collections::BTreeMap;
 use std::io::{Seek, Write};
 use std::path::{Path, PathBuf};
@@ -320,6 +321,23 @@ pub const SHARD_FILE: &str = "shard.txt";
 /// Name of the per-run results file.
 pub const RUNS_FILE: &str = "runs.csv";
 
+/// How an empty or cut-short sweep.toml or shard.txt is described: chirpmap
+/// wrote them in place before they were written atomically, and a full disk
+/// left them empty, which later runs reported as another sweep or shard.
+pub(crate) const CUT_SHORT: &str = "is empty or cut short (a write was interrupted, e.g. by a full disk)";
+
+/// Whether a sweep.toml read back is no whole sweep definition (empty, cut
+/// short or damaged), rather than another sweep's.
+pub(crate) fn sweep_file_is_cut(text: &str) -> bool {
+    text.trim().is_empty() || !text.ends_with('\n') || SweepDef::from_toml_str(text).is_err()
+}
+
+/// Whether a shard.txt read back is not the `I/N` line chirpmap writes.
+pub(crate) fn shard_file_is_cut(text: &str) -> bool {
+    let parsed = text.strip_suffix('\n').and_then(|l| l.split_once('/'));
+    !parsed.is_some_and(|(i, n)| i.parse::<usize>().is_ok() && n.parse::<usize>().is_ok())
+}
+
 impl RunsFile {
     /// Opens `dir` for `plan`: a fresh directory is initialised; one holding
     /// this same sweep and shard resumes; anything else is an error.
@@ -337,6 +355,22 @@ impl RunsFile {
         let sweep_text = plan.def.to_toml_string();
         let shard_text = format!("{}/{}\n", shard.index, shard.count);
         match std::fs::read_to_string(&sweep_path) {
+            Ok(existing)
+                if existing != sweep_text && (sweep_text.starts_with(&existing) || sweep_file_is_cut(&existing)) =>
+            {
+                let what = if path.exists() {
+                    format!(
+                        "{RUNS_FILE} here cannot be resumed without it: copy {SWEEP_FILE} from another directory \
+                         of the same sweep (a shard) or use another --out directory"
+                    )
+                } else {
+                    format!("no run is recorded here: delete it (and {SHARD_FILE}) and rerun")
+                };
+                return Err(ExperimentError::file(
+                    &sweep_path,
+                    format!("{CUT_SHORT}, not a whole sweep definition; {what}"),
+                ));
+            }
             Ok(existing) if existing != sweep_text => {
                 return Err(ExperimentError::file(
                     &sweep_path,
@@ -345,6 +379,7 @@ impl RunsFile {
                 ));
             }
             Ok(_) => {}
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(ExperimentError::io(&sweep_path, e)),
             Err(_) if path.exists() => {
                 return Err(ExperimentError::file(&path, format!("runs.csv without {SWEEP_FILE}: not ours to extend")));
             }
@@ -362,10 +397,20 @@ impl RunsFile {
                         ));
                     }
                 }
-                std::fs::write(&sweep_path, &sweep_text).map_err(|e| ExperimentError::io(&sweep_path, e))?;
+                write_atomic(&sweep_path, sweep_text.as_bytes())?;
             }
         }
         match std::fs::read_to_string(&shard_path) {
+            Ok(existing) if shard_file_is_cut(&existing) => {
+                return Err(ExperimentError::file(
+                    &shard_path,
+                    format!(
+                        "{CUT_SHORT}, not a shard `I/N`; if this directory holds shard {} of this sweep, \
+                         write that line into it and rerun, else use another --out directory",
+                        shard_text.trim()
+                    ),
+                ));
+            }
             Ok(existing) if existing != shard_text => {
                 return Err(ExperimentError::file(
                     &shard_path,
@@ -373,7 +418,8 @@ impl RunsFile {
                 ));
             }
             Ok(_) => {}
-            Err(_) => std::fs::write(&shard_path, &shard_text).map_err(|e| ExperimentError::io(&shard_path, e))?,
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(ExperimentError::io(&shard_path, e)),
+            Err(_) => write_atomic(&shard_path, shard_text.as_bytes())?,
         }
         let mut done: BTreeMap<Job, RunRow> = BTreeMap::new();
         if path.exists() {

@@ -134,6 +134,51 @@ fn foreign_directories_are_refused() {
     assert!(e.to_string().contains("different seed"), "{e}");
 }
 
+/// An empty or cut-short sweep.toml or shard.txt (older chirpmaps wrote them
+/// in place; a full disk left them empty) is named as such, with what to do,
+/// where it was refused as another sweep's ("holds shard , not 0/2").
+#[test]
+fn an_empty_or_cut_sweep_toml_or_shard_txt_is_named_as_such() {
+    let plan = SweepDef::from_toml_str(SWEEP).unwrap().plan(|_| Ok(())).unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path().join("a");
+    let shard = Shard { index: 0, count: 2 };
+    run_sweep(&plan, &d, shard, 1, fake, |_, _| {}).unwrap();
+    let sweep_toml = std::fs::read_to_string(d.join("sweep.toml")).unwrap();
+    for cut in ["", &sweep_toml[..sweep_toml.len() / 2], &sweep_toml[..sweep_toml.len() - 1]] {
+        std::fs::write(d.join("sweep.toml"), cut).unwrap();
+        let e = run_sweep(&plan, &d, shard, 1, fake, |_, _| {}).unwrap_err().to_string();
+        assert!(e.contains("sweep.toml: is empty or cut short") && e.contains("copy sweep.toml"), "{e}");
+    }
+    std::fs::write(d.join("sweep.toml"), &sweep_toml).unwrap();
+    for cut in ["", "0/", "0/2"] {
+        std::fs::write(d.join("shard.txt"), cut).unwrap();
+        let e = run_sweep(&plan, &d, shard, 1, fake, |_, _| {}).unwrap_err().to_string();
+        assert!(e.contains("shard.txt: is empty or cut short") && e.contains("shard 0/2 of this sweep"), "{e}");
+    }
+    std::fs::write(d.join("shard.txt"), "0/2\n").unwrap();
+    assert_eq!(run_sweep(&plan, &d, shard, 1, fake, |_, _| {}).unwrap().executed, 0);
+    // Nothing run yet: the empty file is all there is.
+    let fresh = tmp.path().join("fresh");
+    std::fs::create_dir(&fresh).unwrap();
+    std::fs::write(fresh.join("sweep.toml"), "").unwrap();
+    let e = run_sweep(&plan, &fresh, shard, 1, fake, |_, _| {}).unwrap_err().to_string();
+    assert!(e.contains("is empty or cut short") && e.contains("delete it"), "{e}");
+    // A merge into a directory left so, and from one.
+    let m = tmp.path().join("m");
+    std::fs::create_dir(&m).unwrap();
+    std::fs::write(m.join("sweep.toml"), "").unwrap();
+    let e = merge(&[d.as_path()], &m, |d| d.plan(|_| Ok(()))).unwrap_err().to_string();
+    assert!(e.contains("holds a sweep.toml that is empty or cut short"), "{e}");
+    std::fs::write(m.join("sweep.toml"), &sweep_toml).unwrap();
+    std::fs::write(m.join("shard.txt"), "").unwrap();
+    let e = merge(&[d.as_path()], &m, |d| d.plan(|_| Ok(()))).unwrap_err().to_string();
+    assert!(e.contains("holds a shard.txt that is empty or cut short"), "{e}");
+    std::fs::write(d.join("sweep.toml"), "").unwrap();
+    let e = merge(&[d.as_path()], &tmp.path().join("m2"), |d| d.plan(|_| Ok(()))).unwrap_err().to_string();
+    assert!(e.contains("sweep.toml: is empty or cut short"), "{e}");
+}
+
 /// Issue 8, item 4: merge refuses an `--out` that holds another sweep, one of
 /// its inputs (however spelled) or a user's files, and changes none of them.
 #[test]
