@@ -436,6 +436,19 @@ impl<'a> Renderer<'a> {
     /// Checks `scene` and `cfg` (not the memory cap: that is the caller's)
     /// and prepares the chirps, obstacles and lengths.
     pub fn new(scene: &'a Scene, cfg: &'a SynthConfig) -> Result<Self, AudioError> {
+        // One channel per listener: a WAV the readers (`range`, `map --wav`)
+        // refuse must not be written (300 listeners made one).
+        let max_channels = usize::from(crate::wav::MAX_CHANNELS);
+        if scene.listeners.len() > max_channels {
+            return Err(AudioError::InvalidParam {
+                field: "listeners",
+                reason: format!(
+                    "{} listeners, but a recording holds at most {max_channels} channels (one per listener); \
+                     split them over several scenes",
+                    scene.listeners.len()
+                ),
+            });
+        }
         let cycle = pattern_cycle(&scene.chirp, cfg.pattern);
         let sweeps: Vec<Box<dyn chirpmap_core::Sweep>> =
             cycle.iter().map(ChirpSpec::build).collect::<Result<_, _>>()?;
@@ -795,6 +808,25 @@ mod tests {
         let (scene, cfg) = parse_scene_with_synth(&format!("{base}chirps = 1000000\n")).unwrap();
         let e = SynthStream::new(&scene, &cfg).map(|_| ()).unwrap_err().to_string();
         assert!(e.contains("synth.chirps") && e.contains("2000000000 samples"), "{e}");
+    }
+
+    /// More listeners than a WAV reader accepts channels are refused before
+    /// any rendering, naming the field (synth wrote a 300-channel WAV that
+    /// `range` and `map --wav` then refused).
+    #[test]
+    fn more_listeners_than_wav_channels_are_refused() {
+        let scene_with = |n: usize| {
+            let listeners = "[[listeners]]\nstart = [1.5, 0.5]\nspeed = 0.0\n".repeat(n);
+            parse_scene_with_synth(&format!("{listeners}[synth]\nchirps = 1\n")).unwrap()
+        };
+        let max = usize::from(crate::wav::MAX_CHANNELS);
+        let (scene, cfg) = scene_with(max + 1);
+        let e = SynthStream::new(&scene, &cfg).map(|_| ()).unwrap_err().to_string();
+        assert!(e.contains("listeners") && e.contains(&format!("at most {max} channels")), "{e}");
+        let e = synthesize(&scene, &cfg).map(|_| ()).unwrap_err().to_string();
+        assert!(e.contains("listeners"), "{e}");
+        let (scene, cfg) = scene_with(max);
+        assert_eq!(SynthStream::new(&scene, &cfg).unwrap().n_channels(), max);
     }
 
     #[test]
