@@ -17,6 +17,7 @@
 
 use anyhow::{Context, Result, bail};
 use chirpmap_core::Grid;
+use chirpmap_core::error::Num;
 use std::fmt::Write as _;
 #[cfg(test)]
 use std::path::Path;
@@ -70,14 +71,25 @@ fn npy_header(shape: (usize, usize)) -> Result<Vec<u8>> {
 
 /// `map.npy` bytes of `grid` (see the module docs for the layout). Values
 /// are rounded to f32, the precision any plot needs; NaN and ±∞ pass
-/// through unchanged.
+/// through unchanged. A finite value beyond f32's range is an error naming
+/// its cell: it was written as ±∞ (echo weights of 1e300), a map no reader
+/// can normalise.
 pub fn npy_bytes(grid: &Grid) -> Result<Vec<u8>> {
     check_shape(grid)?;
     let mut out = npy_header((grid.spec.ny, grid.spec.nx))?;
     let header = out.len();
     out.resize(header + grid.data.len() * 4, 0);
-    for (dst, &v) in out[header..].chunks_exact_mut(4).zip(&grid.data) {
-        dst.copy_from_slice(&(v as f32).to_le_bytes());
+    for (k, (dst, &v)) in out[header..].chunks_exact_mut(4).zip(&grid.data).enumerate() {
+        let v32 = v as f32;
+        if v32.is_infinite() && v.is_finite() {
+            let (i, j) = (k % grid.spec.nx, k / grid.spec.nx);
+            bail!(
+                "map.npy: cell ({i}, {j}) holds {}, beyond float32's range (±{}); scale the echoes' weights down",
+                Num(v),
+                Num(f64::from(f32::MAX))
+            );
+        }
+        dst.copy_from_slice(&v32.to_le_bytes());
     }
     Ok(out)
 }
@@ -249,6 +261,19 @@ mod tests {
         // The dict is spelled as NumPy writes it (key order, spacing, trailing comma).
         let b = npy_bytes(&g).unwrap();
         assert!(b.starts_with(b"\x93NUMPY\x01\x00\x76\x00{'descr': '<f4', 'fortran_order': False, 'shape': (2, 3), }"));
+    }
+
+    /// A finite value that f32 cannot hold is refused, naming the cell; it
+    /// was written as +inf (exit 0). f32::MAX itself and NaN still pass.
+    #[test]
+    fn a_value_beyond_f32_is_an_error_naming_its_cell() {
+        let e = npy_bytes(&grid(3, 2, vec![0.0, 1.0, 2.0, 3.0, 1e300, 5.0])).unwrap_err().to_string();
+        assert!(e.contains("cell (1, 1) holds 1e300") && e.contains("float32"), "{e}");
+        let e = npy_bytes(&grid(2, 1, vec![-1e39, 0.0])).unwrap_err().to_string();
+        assert!(e.contains("cell (0, 0) holds -1e39"), "{e}");
+        let (_, data) = read_npy(&npy_bytes(&grid(2, 1, vec![f64::from(f32::MAX), f64::NAN])).unwrap());
+        assert_eq!(data[0], f32::MAX);
+        assert!(data[1].is_nan());
     }
 
     #[test]

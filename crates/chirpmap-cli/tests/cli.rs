@@ -134,6 +134,12 @@ fn bad_input_fails_cleanly_without_output() {
         ("garbage", (0u8..=255).cycle().take(3000).collect(), ""),
         ("huge", format!("{head}0,0,1,1,1e9\n").into_bytes(), "more than the cap"),
         ("absurd", format!("{head}0,0,1,1,2\n0,0,1,1,1e12\n").into_bytes(), ":3: invalid geometry"),
+        // Finite weights whose map exceeds float32: map.npy held +inf (exit 0).
+        (
+            "f32 overflow",
+            "source_x,source_y,listener_x,listener_y,delta_d,weight\n0,0,-20,10,26,1e300\n".as_bytes().to_vec(),
+            "map.npy: cell (",
+        ),
     ];
     for (name, bytes, want) in cases {
         let f = tmp.path().join(format!("{name}.csv"));
@@ -143,7 +149,8 @@ fn bad_input_fails_cleanly_without_output() {
         let err = String::from_utf8_lossy(&o.stderr);
         assert_eq!(o.status.code(), Some(1), "{name}: {err}");
         assert!(err.contains(want), "{name}: {err:?} lacks {want:?}");
-        assert!(err.contains(f.file_name().unwrap().to_str().unwrap()) || name == "huge", "{name}: {err}");
+        let names_file = err.contains(f.file_name().unwrap().to_str().unwrap());
+        assert!(names_file || ["huge", "f32 overflow"].contains(&name), "{name}: {err}");
         assert!(!err.contains("panicked"), "{name}: {err}");
         assert!(!out.exists(), "{name}: output directory was left behind");
     }
