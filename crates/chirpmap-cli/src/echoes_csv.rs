@@ -8,6 +8,7 @@
 //! reported on the wrong line; issue 8, item 14).
 
 use anyhow::{Context, Result, anyhow, bail};
+use chirpmap_core::echo::MAX_SIGMA_M;
 use chirpmap_core::error::Num;
 use chirpmap_core::{Echo, Point};
 use std::io::Write;
@@ -189,6 +190,9 @@ pub fn parse_echoes(bytes: &[u8], name: &str) -> Result<Vec<Echo>> {
             if sigma <= 0.0 {
                 bail!("{name}:{line}: `sigma_m` = {} must be > 0 (the 1-σ uncertainty of delta_d, m)", Num(sigma));
             }
+            if sigma > MAX_SIGMA_M {
+                bail!("{name}:{line}: `sigma_m` = {} must be at most {} m", Num(sigma), Num(MAX_SIGMA_M));
+            }
             echo = echo.with_sigma_m(sigma).map_err(|e| anyhow!("{name}:{line}: {e}"))?;
         }
         echoes.push(echo);
@@ -246,7 +250,13 @@ mod tests {
         let text = String::from_utf8(buf).unwrap();
         assert!(text.lines().next().unwrap().ends_with(",sigma_m"), "{text}");
         assert_eq!(parse(&text).unwrap(), e);
-        for (bad, want) in [("0", "must be > 0"), ("-1", "must be > 0"), ("nan", "not finite"), ("x", "not a number")] {
+        for (bad, want) in [
+            ("0", "must be > 0"),
+            ("-1", "must be > 0"),
+            ("nan", "not finite"),
+            ("x", "not a number"),
+            ("1e300", "`sigma_m` = 1e300 must be at most 1000000 m"),
+        ] {
             let err = format!("{:#}", parse(&format!("{head}0,0,1,1,2,{bad}\n")).unwrap_err());
             assert!(err.contains("e.csv:2") && err.contains(want), "{bad}: {err}");
         }

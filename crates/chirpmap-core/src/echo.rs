@@ -4,6 +4,12 @@ use crate::ellipse::Ellipse;
 use crate::error::{CoreError, finite};
 use crate::geometry::Point;
 
+/// Largest 1-σ Δd uncertainty an echo may carry (m): no larger than the
+/// largest coordinate accepted ([`crate::geometry::MAX_COORD_M`]). The
+/// evidence mapper's bands reach Δd ± 10σ, and σ = 1e300 made it fail on an
+/// invalid ellipse of Δd 3e300 that named neither the echo nor `sigma_m`.
+pub const MAX_SIGMA_M: f64 = crate::geometry::MAX_COORD_M;
+
 /// One reflection heard by one listener at one instant.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Echo {
@@ -45,11 +51,22 @@ impl Echo {
         Ok(echo)
     }
 
-    /// The same echo with a known 1-σ Δd uncertainty (m): finite and > 0.
+    /// The same echo with a known 1-σ Δd uncertainty (m): finite, > 0 and at
+    /// most [`MAX_SIGMA_M`].
     pub fn with_sigma_m(self, sigma_m: f64) -> Result<Self, CoreError> {
         finite("sigma", sigma_m)?;
         if sigma_m <= 0.0 {
             return Err(CoreError::InvalidParam { field: "sigma", reason: format!("must be > 0 m, got {sigma_m}") });
+        }
+        if sigma_m > MAX_SIGMA_M {
+            return Err(CoreError::InvalidParam {
+                field: "sigma",
+                reason: format!(
+                    "must be at most {} m, got {}",
+                    crate::error::Num(MAX_SIGMA_M),
+                    crate::error::Num(sigma_m)
+                ),
+            });
         }
         Ok(Self { sigma_m: Some(sigma_m), ..self })
     }
@@ -71,6 +88,8 @@ mod tests {
         let e = Echo::new(Point::new(0.0, 0.0), Point::new(1.0, 0.0), 0.5, 1.0, 0.0, 0).expect("valid echo");
         assert_eq!(e.sigma_m, None);
         assert_eq!(e.with_sigma_m(0.02).map(|e| e.sigma_m), Ok(Some(0.02)));
+        assert_eq!(e.with_sigma_m(MAX_SIGMA_M).map(|e| e.sigma_m), Ok(Some(MAX_SIGMA_M)));
+        assert!(e.with_sigma_m(1e300).is_err(), "σ = 1e300 made the evidence mapper fail naming no echo");
         assert!(e.with_sigma_m(0.0).is_err());
         assert!(e.with_sigma_m(-1.0).is_err());
         assert!(e.with_sigma_m(f64::NAN).is_err());
