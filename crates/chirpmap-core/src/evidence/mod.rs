@@ -379,7 +379,6 @@ pub fn map_evidence(echoes: &[Echo], spec: GridSpec, params: &EvidenceParams) ->
     if !(spec.x_min_m.is_finite() && spec.y_min_m.is_finite()) {
         return Err(CoreError::InvalidGrid("grid origin must be finite".into()));
     }
-    lines::check_vote_memory(spec, params)?;
     // Weight 0 marks an echo kept in the file but out of the map (e.g. a
     // floor or ceiling reflection, docs/rooms.md), as it is for Algorithm 1,
     // where it adds nothing: it is neither evidence nor free space here.
@@ -388,6 +387,11 @@ pub fn map_evidence(echoes: &[Echo], spec: GridSpec, params: &EvidenceParams) ->
     } else {
         echoes.into()
     };
+    // The vote's offset bins follow the echoes' σ (as `prepare` reads it;
+    // an invalid σ is refused there).
+    let sigmas_m =
+        echoes.iter().map(|e| e.sigma_m.filter(|s| s.is_finite() && *s > 0.0).unwrap_or(params.default_sigma_m));
+    lines::check_vote_memory(spec, params, lines::vote_rho_bin(spec.cell_m, params, sigmas_m))?;
     let mut ctx = prepare(&echoes, spec, params)?;
     let mut cells_updated = carve_free(&mut ctx)?;
 
@@ -417,6 +421,8 @@ pub fn map_evidence(echoes: &[Echo], spec: GridSpec, params: &EvidenceParams) ->
         }
         surfaces.push((p.surface, p.touches));
     }
+
+    drop_lines_of_points(&ctx, &mut surfaces);
 
     // Final map: carving + hits at reflection points + faint unexplained rings.
     let mut grid = Grid { spec, data: std::mem::take(&mut ctx.free) };
@@ -450,6 +456,37 @@ pub fn map_evidence(echoes: &[Echo], spec: GridSpec, params: &EvidenceParams) ->
     surfaces.truncate(params.max_surfaces as usize);
     represent_surfaces(&grid, &surfaces, params.peak_radius_m, &mut highlights);
     Ok(EvidenceMap { grid, surfaces, highlights, cells_updated })
+}
+
+/// Removes each ambiguous line at least four fifths of whose echoes a
+/// compact reflector also explains (focal excess within their band). Along
+/// a straight pass a point's echoes are, over a stretch of the pass, also
+/// those of a line on the far side (the mirror ambiguity of issue 9, item 4,
+/// with the point's curvature below the band): the point, found from the
+/// echoes no line took, is the one surface that explains them all. Seen on
+/// field B (a pole) from `synth` echoes once the vote's offset bins
+/// followed σ ([`lines::vote_rho_bin`]): two ambiguous lines 11 m from the
+/// pole, and one beside the pole of test
+/// `pole_beside_a_straight_walk_is_one_point`. The echoes stay explained
+/// (no ring).
+fn drop_lines_of_points(ctx: &Ctx, surfaces: &mut Vec<(Surface, Vec<(usize, Point)>)>) {
+    let points: Vec<Point> = surfaces.iter().filter(|(s, _)| s.kind == SurfaceKind::Point).map(|(s, _)| s.p0).collect();
+    if points.is_empty() {
+        return;
+    }
+    let band = ctx.params.band_sigmas;
+    surfaces.retain(|(s, touches)| {
+        if s.kind != SurfaceKind::Line || !s.ambiguous || touches.is_empty() {
+            return true;
+        }
+        !points.iter().any(|&p| {
+            let fits = touches
+                .iter()
+                .filter(|&&(k, _)| ctx.preps[k].ellipse.focal_excess(p).abs() <= band * ctx.preps[k].sigma_m)
+                .count();
+            5 * fits >= 4 * touches.len()
+        })
+    });
 }
 
 /// Validates echoes and groups them into measurements.
