@@ -18,6 +18,8 @@ pub(crate) struct PointOut {
     pub surface: Surface,
     /// Echoes explained, each with its envelope point.
     pub touches: Vec<(usize, Point)>,
+    /// The small circle last fitted to them (`None` when no fit converged).
+    pub model: Option<SmallCircle>,
 }
 
 /// Samples per ellipse when looking for crossings.
@@ -185,7 +187,7 @@ pub(crate) fn find_points(ctx: &Ctx, skip: &[bool], max_points: usize) -> Vec<Po
         // Every other free echo the reflector explains: without this, the
         // second crossings of its ellipses (on the far side of the foci) pile
         // up on a ghost curve and take the echoes its cluster radius missed.
-        explain_more(ctx, skip, &echo_used, at, &mut touches, &mut meas_seen);
+        let model = explain_more(ctx, skip, &echo_used, at, &mut touches, &mut meas_seen);
         for &(k, _) in &touches {
             echo_used[k] = true;
         }
@@ -199,6 +201,7 @@ pub(crate) fn find_points(ctx: &Ctx, skip: &[bool], max_points: usize) -> Vec<Po
                 ambiguous: point_ambiguous(ctx, &ks, at),
             },
             touches,
+            model,
         });
     }
     out
@@ -219,7 +222,7 @@ impl SmallCircle {
     /// (exact to first order in ρ over the distances), minus `|s − l|`.
     /// Also returns the path's gradient in (cx, cy, ρ), the ρ term's
     /// dependence on `c` left out (second order).
-    fn predict(&self, s: Point, l: Point) -> Option<(f64, [f64; 3])> {
+    pub(crate) fn predict(&self, s: Point, l: Point) -> Option<(f64, [f64; 3])> {
         let (ds, dl) = (s - self.c, l - self.c);
         let (ns, nl) = (ds.norm(), dl.norm());
         if !(ns > 1e-9 && nl > 1e-9) {
@@ -234,7 +237,7 @@ impl SmallCircle {
 
     /// The reflection point of an echo with foci `s` and `l`: on the circle,
     /// along the bisector of the directions to them.
-    fn specular_point(&self, s: Point, l: Point) -> Point {
+    pub(crate) fn specular_point(&self, s: Point, l: Point) -> Point {
         let (ds, dl) = (s - self.c, l - self.c);
         let (ns, nl) = (ds.norm(), dl.norm());
         let bisector = if ns > 0.0 && nl > 0.0 { ds * (1.0 / ns) + dl * (1.0 / nl) } else { Point::new(0.0, 0.0) };
@@ -293,7 +296,7 @@ impl SmallCircle {
 /// predicts within kσ (one per measurement, the nearest: a measurement hears
 /// one reflection of one reflector), each at its reflection point on the
 /// circle, in two rounds (fit, extend, refit, extend); records their
-/// measurements.
+/// measurements. Returns the last circle fitted.
 fn explain_more(
     ctx: &Ctx,
     skip: &[bool],
@@ -301,11 +304,13 @@ fn explain_more(
     at: Point,
     touches: &mut Vec<(usize, Point)>,
     meas_seen: &mut std::collections::BTreeSet<usize>,
-) {
+) -> Option<SmallCircle> {
     let p = ctx.params;
+    let mut last = None;
     for _ in 0..2 {
         let ks: Vec<usize> = touches.iter().map(|&(k, _)| k).collect();
-        let Some(model) = SmallCircle::fit(ctx, &ks, at, p.point_radius_m) else { return };
+        let Some(model) = SmallCircle::fit(ctx, &ks, at, p.point_radius_m) else { return last };
+        last = Some(model);
         // The nearest explained echo of each measurement not yet touched.
         let mut best: Vec<Option<(usize, f64)>> = vec![None; ctx.meas.len()];
         for (k, prep) in ctx.preps.iter().enumerate() {
@@ -325,6 +330,7 @@ fn explain_more(
             meas_seen.insert(meas);
         }
     }
+    last
 }
 
 /// [`super::lines::solve3`] of the normal equations `a·x = b`, refused also

@@ -413,7 +413,9 @@ pub fn map_evidence(echoes: &[Echo], spec: GridSpec, params: &EvidenceParams) ->
     }
     let skip: Vec<bool> = explained.iter().zip(&ghost_echo).map(|(e, g)| e.is_some() || *g).collect();
     let max_points = (params.max_surfaces as usize).saturating_sub(surfaces.len());
+    let mut models: Vec<Option<envelope::SmallCircle>> = vec![None; surfaces.len()];
     for p in envelope::find_points(&ctx, &skip, max_points) {
+        models.push(p.model);
         for &(k, _) in &p.touches {
             if explained[k].is_none() {
                 explained[k] = Some(surfaces.len());
@@ -422,7 +424,7 @@ pub fn map_evidence(echoes: &[Echo], spec: GridSpec, params: &EvidenceParams) ->
         surfaces.push((p.surface, p.touches));
     }
 
-    drop_lines_of_points(&ctx, &mut surfaces);
+    drop_lines_of_points(&ctx, &mut surfaces, &models);
 
     // Final map: carving + hits at reflection points + faint unexplained rings.
     let mut grid = Grid { spec, data: std::mem::take(&mut ctx.free) };
@@ -458,35 +460,65 @@ pub fn map_evidence(echoes: &[Echo], spec: GridSpec, params: &EvidenceParams) ->
     Ok(EvidenceMap { grid, surfaces, highlights, cells_updated })
 }
 
-/// Removes each ambiguous line at least four fifths of whose echoes a
-/// compact reflector also explains (focal excess within their band). Along
-/// a straight pass a point's echoes are, over a stretch of the pass, also
-/// those of a line on the far side (the mirror ambiguity of issue 9, item 4,
-/// with the point's curvature below the band): the point, found from the
-/// echoes no line took, is the one surface that explains them all. Seen on
-/// field B (a pole) from `synth` echoes once the vote's offset bins
-/// followed σ ([`lines::vote_rho_bin`]): two ambiguous lines 11 m from the
-/// pole, and one beside the pole of test
-/// `pole_beside_a_straight_walk_is_one_point`. The echoes stay explained
-/// (no ring).
-fn drop_lines_of_points(ctx: &Ctx, surfaces: &mut Vec<(Surface, Vec<(usize, Point)>)>) {
-    let points: Vec<Point> = surfaces.iter().filter(|(s, _)| s.kind == SurfaceKind::Point).map(|(s, _)| s.p0).collect();
-    if points.is_empty() {
-        return;
-    }
+/// Removes each line at least four fifths of whose echoes a compact
+/// reflector also explains (its fitted small circle's predicted Δd, or the
+/// focal excess at the point without one, within the echo's band), and
+/// gives the reflector those echoes. Along a straight pass a small
+/// reflector's echoes are, over a stretch of the pass, also those of a line
+/// on the far side (the mirror ambiguity of issue 9, item 4, with the
+/// reflector's curvature below the band). Lines are sought first, so such a
+/// line takes those echoes before the reflector is found from the rest; the
+/// reflector is the one surface that explains them all. Seen on field B (a
+/// pole) from `synth` echoes once the vote's offset bins followed σ
+/// ([`lines::vote_rho_bin`]): two ambiguous lines 11 m from the pole, and
+/// one beside the pole of test `pole_beside_a_straight_walk_is_one_point`.
+/// A loop past circles (`benchmark maps`' loop-circles) had one such line
+/// that is not ambiguous: the rule holds for any line.
+fn drop_lines_of_points(
+    ctx: &Ctx,
+    surfaces: &mut Vec<(Surface, Vec<(usize, Point)>)>,
+    models: &[Option<envelope::SmallCircle>],
+) {
     let band = ctx.params.band_sigmas;
-    surfaces.retain(|(s, touches)| {
-        if s.kind != SurfaceKind::Line || !s.ambiguous || touches.is_empty() {
-            return true;
+    let fits = |k: usize, i: usize, at: Point| -> bool {
+        let prep = &ctx.preps[k];
+        let e = &prep.ellipse;
+        let miss = match models.get(i).copied().flatten() {
+            Some(model) => model.predict(e.focus_a, e.focus_b).map_or(f64::INFINITY, |(pred, _)| e.delta_d_m - pred),
+            None => e.focal_excess(at),
+        };
+        miss.abs() <= band * prep.sigma_m
+    };
+    let points: Vec<usize> = (0..surfaces.len()).filter(|&i| surfaces[i].0.kind == SurfaceKind::Point).collect();
+    let mut dropped = vec![false; surfaces.len()];
+    for l in 0..surfaces.len() {
+        let (s, touches) = &surfaces[l];
+        if s.kind != SurfaceKind::Line || touches.is_empty() {
+            continue;
         }
-        !points.iter().any(|&p| {
-            let fits = touches
-                .iter()
-                .filter(|&&(k, _)| ctx.preps[k].ellipse.focal_excess(p).abs() <= band * ctx.preps[k].sigma_m)
-                .count();
-            5 * fits >= 4 * touches.len()
-        })
-    });
+        let owner = points.iter().copied().find(|&i| {
+            let n_fit = touches.iter().filter(|&&(k, _)| fits(k, i, surfaces[i].0.p0)).count();
+            5 * n_fit >= 4 * touches.len()
+        });
+        let Some(i) = owner else { continue };
+        dropped[l] = true;
+        // The echoes it explains, one per measurement it has none of.
+        let taken: Vec<(usize, Point)> =
+            surfaces[l].1.iter().copied().filter(|&(k, _)| fits(k, i, surfaces[i].0.p0)).collect();
+        let mut seen: std::collections::BTreeSet<usize> =
+            surfaces[i].1.iter().map(|&(k, _)| ctx.preps[k].meas).collect();
+        let point = surfaces[i].0.p0;
+        for (k, _) in taken {
+            if seen.insert(ctx.preps[k].meas) {
+                let e = &ctx.preps[k].ellipse;
+                let p = models[i].map_or(point, |m| m.specular_point(e.focus_a, e.focus_b));
+                surfaces[i].1.push((k, p));
+                surfaces[i].0.support += 1;
+            }
+        }
+    }
+    let mut keep = dropped.iter().map(|d| !d);
+    surfaces.retain(|_| keep.next().unwrap_or(true));
 }
 
 /// Validates echoes and groups them into measurements.
