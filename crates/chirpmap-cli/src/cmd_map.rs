@@ -89,9 +89,9 @@ pub fn run(args: &MapArgs) -> Result<()> {
     let (obstacles, base, chirp_base, pattern_base): (Vec<Obstacle>, MappingParams, ChirpSpec, _) = match &args.scene {
         Some(p) => {
             let (scene, synth) = load_scene(p)?;
-            let resolved = chirpmap::sim::resolve(&scene).map_err(|e| anyhow!("{}: {e}", p.display()))?;
-            let chirp = ChirpSpec::from_scene(&resolved.scene);
-            (resolved.obstacles, resolved.scene.mapping, chirp, synth.pattern)
+            let (obstacles, scene) = chirpmap::scene_truth(&scene).map_err(|e| anyhow!("{}: {e}", p.display()))?;
+            let chirp = ChirpSpec::from_scene(&scene);
+            (obstacles, scene.mapping, chirp, synth.pattern)
         }
         None => (Vec::new(), MappingParams::default(), ChirpSpec::default(), None),
     };

@@ -457,3 +457,37 @@ fn an_empty_map_is_reported() {
         assert!(!o.status.success() && err.contains(want), "{flag}: {err}");
     }
 }
+
+/// A scene made for `synth` and `range` (a still listener, which the
+/// particle simulator refuses) still scores a map: its listed obstacles are
+/// the truth (`chirpmap::scene_truth`). Before, `map --scene` stopped with
+/// "listeners[0].speed must be finite and > 0".
+#[test]
+fn map_scores_against_a_scene_with_a_still_listener() {
+    let out = std::env::temp_dir().join(format!("chirpmap-cli-still-{}", std::process::id()));
+    std::fs::remove_dir_all(&out).ok();
+    std::fs::create_dir_all(&out).unwrap();
+    // Two echoes of the examples/wall scene's wall (y = −6, source at the
+    // origin, listener at (1.5, 0.5)): image source (0, −12).
+    let echoes = out.join("echoes.csv");
+    let dd = Point::new(1.5, 12.5).norm() - Point::new(1.5, 0.5).norm();
+    std::fs::write(&echoes, format!("source_x,source_y,listener_x,listener_y,delta_d\n0,0,1.5,0.5,{dd}\n")).unwrap();
+    let scene = repo().join("examples/wall/scene.toml");
+    let map_dir = out.join("map");
+    let o = run(&[
+        "map",
+        "--echoes",
+        echoes.to_str().unwrap(),
+        "--scene",
+        scene.to_str().unwrap(),
+        "--plot-format",
+        "svg",
+        "--out",
+        map_dir.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(map_dir.join("summary.json")).unwrap()).unwrap();
+    assert!(summary["score_obstacle"].as_f64().is_some_and(|s| s > 0.0), "{summary}");
+    std::fs::remove_dir_all(&out).ok();
+}

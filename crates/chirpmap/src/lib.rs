@@ -73,7 +73,7 @@ pub use rooms::{
     DEFAULT_MAX_ECHOES, ECHOGRAM_CHIRPS, EchoCluster, EchoOptions, RoomEcho, RoomGeometry, RoomPrepared, RoomReport,
     StreamedRoom, calibration_response, calibration_response_rir, prepare_room, rir_echoes, room_echoes,
 };
-pub use simulate::{Simulation, default_listener_path, parse_scene, simulate, validate_scene};
+pub use simulate::{Simulation, default_listener_path, parse_scene, scene_truth, simulate, validate_scene};
 
 /// Renders what every listener of `scene` records: the chirp train, the
 /// direct path, specular reflections and noise, with exact per-sample

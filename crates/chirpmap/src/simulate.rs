@@ -4,7 +4,7 @@ use crate::error::Result;
 use crate::mapping::{MapResult, Scores, map_on_grid, score};
 use chirpmap_audio::SynthConfig;
 use chirpmap_core::grid::DEFAULT_MEMORY_CAP_BYTES;
-use chirpmap_core::{GridSpec, Scene};
+use chirpmap_core::{GridSpec, Obstacle, Scene};
 use chirpmap_sim::{Resolved, SimOutput, resolve};
 use std::time::Instant;
 
@@ -34,6 +34,24 @@ pub fn parse_scene(text: &str) -> Result<(Scene, SynthConfig)> {
 pub fn validate_scene(scene: &Scene) -> Result<()> {
     resolve(scene)?;
     Ok(())
+}
+
+/// The obstacles a map of `scene`'s echoes is scored against, and the scene
+/// with its random obstacles listed. Random obstacles are placed as
+/// [`simulate`] places them, which takes the particle simulator's whole
+/// scene (its listeners must move); listed obstacles need only the schema
+/// every command shares, so the scene of a `synth` recording with a still
+/// listener scores the map of its `range --echoes` too.
+pub fn scene_truth(scene: &Scene) -> Result<(Vec<Obstacle>, Scene)> {
+    // The simulator places random obstacles only when none is listed.
+    if !scene.obstacles.is_empty() || scene.random_obstacles.count == 0 {
+        scene.validate()?;
+        scene.chirp.build()?;
+        scene.mapping.validate()?;
+        return Ok((scene.explicit_obstacles()?, scene.clone()));
+    }
+    let resolved = resolve(scene)?;
+    Ok((resolved.obstacles, resolved.scene))
 }
 
 /// Simulates `scene` (its `seed` and `run_index` fix the run bit for bit),
