@@ -19,6 +19,16 @@ fn run(args: &[&str]) -> Output {
     bin().args(args).output().expect("spawn chirpmap")
 }
 
+/// `chirpmap map --echoes ECHOES --scene SCENE [EXTRA…] --out OUT`, which
+/// must succeed.
+fn map_scored(echoes: &Path, scene: &Path, extra: &[&str], out: &Path) {
+    let mut args = vec!["map", "--echoes", echoes.to_str().unwrap(), "--scene", scene.to_str().unwrap()];
+    args.extend_from_slice(extra);
+    args.extend_from_slice(&["--out", out.to_str().unwrap()]);
+    let o = run(&args);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
 fn circles() -> Vec<Circle> {
     [(-10.0, -20.0, 3.0), (6.0, -26.0, 4.0), (14.0, -14.0, 2.5)]
         .iter()
@@ -83,16 +93,7 @@ fn map_finds_each_of_three_circles_from_exact_echoes() {
     std::fs::write(&echoes, exact_echoes_csv()).unwrap();
     let out = tmp.path().join("out");
     let scene = repo().join("examples/three-circles/scene.toml");
-    let o = run(&[
-        "map",
-        "--echoes",
-        echoes.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-        "--scene",
-        scene.to_str().unwrap(),
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    map_scored(&echoes, &scene, &[], &out);
     let hs = read_highlights(&out);
     for c in circles() {
         let best = hs.iter().map(|h| (h.dist(c.center) - c.radius_m).abs()).fold(f64::INFINITY, f64::min);
@@ -242,18 +243,7 @@ fn simulate_default_scene_is_reproducible_and_replayable() {
     // `chirpmap map` replays the echoes on the same grid to the same highlights.
     let m = tmp.path().join("m");
     let echoes = a.join("echoes.csv");
-    let o = run(&[
-        "map",
-        "--echoes",
-        echoes.to_str().unwrap(),
-        "--scene",
-        scene.to_str().unwrap(),
-        "--bounds",
-        "-50,-50,50,50",
-        "--out",
-        m.to_str().unwrap(),
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    map_scored(&echoes, &scene, &["--bounds", "-50,-50,50,50"], &m);
     assert_eq!(read_highlights(&m), read_highlights(&a));
 }
 
@@ -344,18 +334,7 @@ fn map_scene_with_random_obstacles_is_scored_like_simulate() {
     std::fs::write(&empty, "").unwrap();
     let out = tmp.path().join("map");
     let echoes = sim.join("echoes.csv");
-    let o = run(&[
-        "map",
-        "--echoes",
-        echoes.to_str().unwrap(),
-        "--scene",
-        empty.to_str().unwrap(),
-        "--bounds",
-        "-50,-50,50,50",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    map_scored(&echoes, &empty, &["--bounds", "-50,-50,50,50"], &out);
     let read = |p: &Path| -> serde_json::Value { serde_json::from_str(&std::fs::read_to_string(p).unwrap()).unwrap() };
     let (m, s) = (read(&out.join("summary.json")), read(&sim.join("summary.json")));
     assert_eq!(m["score_obstacle"], s["score_obstacle"], "{m} vs {s}");
@@ -385,20 +364,7 @@ fn evidence_mapper_writes_surfaces_grid_data_and_metrics() {
     std::fs::remove_dir_all(&out).ok();
     let (echoes, scene) =
         (repo().join("examples/three-circles/echoes.csv"), repo().join("examples/three-circles/scene.toml"));
-    let o = run(&[
-        "map",
-        "--echoes",
-        echoes.to_str().unwrap(),
-        "--scene",
-        scene.to_str().unwrap(),
-        "--mapper",
-        "evidence",
-        "--plot-format",
-        "svg",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    map_scored(&echoes, &scene, &["--mapper", "evidence", "--plot-format", "svg"], &out);
     let surfaces = std::fs::read_to_string(out.join("surfaces.csv")).unwrap();
     assert!(surfaces.starts_with("kind,x0,y0,x1,y1,support,ambiguous\n"), "{surfaces}");
     let summary: serde_json::Value =
@@ -474,18 +440,7 @@ fn map_scores_against_a_scene_with_a_still_listener() {
     std::fs::write(&echoes, format!("source_x,source_y,listener_x,listener_y,delta_d\n0,0,1.5,0.5,{dd}\n")).unwrap();
     let scene = repo().join("examples/wall/scene.toml");
     let map_dir = out.join("map");
-    let o = run(&[
-        "map",
-        "--echoes",
-        echoes.to_str().unwrap(),
-        "--scene",
-        scene.to_str().unwrap(),
-        "--plot-format",
-        "svg",
-        "--out",
-        map_dir.to_str().unwrap(),
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    map_scored(&echoes, &scene, &["--plot-format", "svg"], &map_dir);
     let summary: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(map_dir.join("summary.json")).unwrap()).unwrap();
     assert!(summary["score_obstacle"].as_f64().is_some_and(|s| s > 0.0), "{summary}");
