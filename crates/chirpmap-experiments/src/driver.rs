@@ -5,7 +5,7 @@ use crate::error::ExperimentError;
 use crate::runner::execute;
 use crate::runs::{
     CUT_SHORT, RUNS_FILE, RunMetrics, RunRow, RunsFile, SHARD_FILE, SWEEP_FILE, read_rows, shard_file_is_cut,
-    sweep_file_is_cut, write_sorted,
+    sweep_file_is_cut, write_atomic, write_sorted,
 };
 use crate::summary::{ConfigSummary, summarise, summary_csv, summary_md};
 use crate::sweep::{Job, Plan, Shard, SweepDef};
@@ -83,19 +83,6 @@ pub fn read_sweep_def(dir: &Path) -> Result<(String, SweepDef), ExperimentError>
 /// `shard.txt` of a merged output: the whole sweep.
 const MERGED_SHARD: &str = "0/1\n";
 
-/// Writes `path` whole or not at all (a hidden temporary file, then a
-/// rename): a full disk must not leave an empty sweep.toml or shard.txt,
-/// which every later run took for another sweep's.
-pub(crate) fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), ExperimentError> {
-    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    let tmp = path.with_file_name(format!(".{name}.tmp"));
-    if let Err(e) = std::fs::write(&tmp, bytes) {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(ExperimentError::io(&tmp, e));
-    }
-    std::fs::rename(&tmp, path).map_err(|e| ExperimentError::io(path, e))
-}
-
 /// Whether two existing paths are the same directory: same canonical path,
 /// or (on Unix) the same device and inode, so `./s0`, `s0/` and a symlink to
 /// it are all recognised.
@@ -136,7 +123,7 @@ fn check_merge_out(inputs: &[&Path], out: &Path, sweep_text: &str) -> Result<(),
         Err(ExperimentError::Merge(format!("--out {} {why}; merge into a new or empty directory", out.display())))
     };
     match std::fs::read_to_string(out.join(SWEEP_FILE)) {
-        Ok(text) if text != sweep_text && (sweep_text.starts_with(&text) || sweep_file_is_cut(&text)) => {
+        Ok(text) if text != sweep_text && sweep_file_is_cut(&text, sweep_text) => {
             refuse(&format!("holds a {SWEEP_FILE} that {CUT_SHORT}"))
         }
         Ok(text) if text != sweep_text => refuse("holds another sweep (its sweep.toml differs)"),

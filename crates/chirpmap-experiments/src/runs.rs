@@ -1,7 +1,6 @@
 //! `runs.csv`: one row per finished run, streamed as runs finish so an
 //! interrupted sweep loses nothing, and read back to resume or merge.
 
-use crate::driver::write_atomic;
 use crate::error::ExperimentError;
 use crate::sweep::{Job, Plan, Shard, SweepDef};
 use std::collections::BTreeMap;
@@ -326,10 +325,27 @@ pub const RUNS_FILE: &str = "runs.csv";
 /// left them empty, which later runs reported as another sweep or shard.
 pub(crate) const CUT_SHORT: &str = "is empty or cut short (a write was interrupted, e.g. by a full disk)";
 
-/// Whether a sweep.toml read back is no whole sweep definition (empty, cut
-/// short or damaged), rather than another sweep's.
-pub(crate) fn sweep_file_is_cut(text: &str) -> bool {
-    text.trim().is_empty() || !text.ends_with('\n') || SweepDef::from_toml_str(text).is_err()
+/// Whether a sweep.toml read back that differs from `expected` is no whole
+/// sweep definition (empty, cut short, a prefix of `expected` or damaged),
+/// rather than another sweep's.
+pub(crate) fn sweep_file_is_cut(text: &str, expected: &str) -> bool {
+    expected.starts_with(text)
+        || text.trim().is_empty()
+        || !text.ends_with('\n')
+        || SweepDef::from_toml_str(text).is_err()
+}
+
+/// Writes `path` whole or not at all (a hidden temporary file, then a
+/// rename): a full disk must not leave an empty sweep.toml or shard.txt,
+/// which every later run took for another sweep's.
+pub(crate) fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), ExperimentError> {
+    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let tmp = path.with_file_name(format!(".{name}.tmp"));
+    if let Err(e) = std::fs::write(&tmp, bytes) {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(ExperimentError::io(&tmp, e));
+    }
+    std::fs::rename(&tmp, path).map_err(|e| ExperimentError::io(path, e))
 }
 
 /// Whether a shard.txt read back is not the `I/N` line chirpmap writes.
@@ -355,9 +371,7 @@ impl RunsFile {
         let sweep_text = plan.def.to_toml_string();
         let shard_text = format!("{}/{}\n", shard.index, shard.count);
         match std::fs::read_to_string(&sweep_path) {
-            Ok(existing)
-                if existing != sweep_text && (sweep_text.starts_with(&existing) || sweep_file_is_cut(&existing)) =>
-            {
+            Ok(existing) if existing != sweep_text && sweep_file_is_cut(&existing, &sweep_text) => {
                 let what = if path.exists() {
                     format!(
                         "{RUNS_FILE} here cannot be resumed without it: copy {SWEEP_FILE} from another directory \
