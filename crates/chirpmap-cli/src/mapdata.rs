@@ -79,17 +79,22 @@ pub fn npy_bytes(grid: &Grid) -> Result<Vec<u8>> {
     let mut out = npy_header((grid.spec.ny, grid.spec.nx))?;
     let header = out.len();
     out.resize(header + grid.data.len() * 4, 0);
-    for (k, (dst, &v)) in out[header..].chunks_exact_mut(4).zip(&grid.data).enumerate() {
-        let v32 = v as f32;
-        if v32.is_infinite() && v.is_finite() {
-            let (i, j) = (k % grid.spec.nx, k / grid.spec.nx);
-            bail!(
-                "map.npy: cell ({i}, {j}) holds {}, beyond float32's range (±{}); scale the echoes' weights down",
-                Num(v),
-                Num(f64::from(f32::MAX))
-            );
-        }
-        dst.copy_from_slice(&v32.to_le_bytes());
+    // Overflow is noted without a branch, so the loop over every cell (a
+    // million in the default run) stays as straight as it was; the culprit
+    // is looked up only then.
+    let overflows = |v: f64| (v as f32).is_infinite() & v.is_finite();
+    let mut overflow = false;
+    for (dst, &v) in out[header..].chunks_exact_mut(4).zip(&grid.data) {
+        overflow |= overflows(v);
+        dst.copy_from_slice(&(v as f32).to_le_bytes());
+    }
+    if let Some(k) = overflow.then(|| grid.data.iter().position(|&v| overflows(v))).flatten() {
+        let (i, j) = (k % grid.spec.nx, k / grid.spec.nx);
+        bail!(
+            "map.npy: cell ({i}, {j}) holds {}, beyond float32's range (±{}); scale the echoes' weights down",
+            Num(grid.data[k]),
+            Num(f64::from(f32::MAX))
+        );
     }
     Ok(out)
 }

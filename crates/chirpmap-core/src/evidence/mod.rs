@@ -496,19 +496,17 @@ fn drop_lines_of_points(
         if s.kind != SurfaceKind::Line || touches.is_empty() {
             continue;
         }
-        let owner = points.iter().copied().find(|&i| {
-            let n_fit = touches.iter().filter(|&&(k, _)| fits(k, i, surfaces[i].0.p0)).count();
-            5 * n_fit >= 4 * touches.len()
+        let owner = points.iter().find_map(|&i| {
+            let taken: Vec<usize> = touches.iter().map(|&(k, _)| k).filter(|&k| fits(k, i, surfaces[i].0.p0)).collect();
+            (5 * taken.len() >= 4 * touches.len()).then_some((i, taken))
         });
-        let Some(i) = owner else { continue };
+        let Some((i, taken)) = owner else { continue };
         dropped[l] = true;
         // The echoes it explains, one per measurement it has none of.
-        let taken: Vec<(usize, Point)> =
-            surfaces[l].1.iter().copied().filter(|&(k, _)| fits(k, i, surfaces[i].0.p0)).collect();
         let mut seen: std::collections::BTreeSet<usize> =
             surfaces[i].1.iter().map(|&(k, _)| ctx.preps[k].meas).collect();
         let point = surfaces[i].0.p0;
-        for (k, _) in taken {
+        for k in taken {
             if seen.insert(ctx.preps[k].meas) {
                 let e = &ctx.preps[k].ellipse;
                 let p = models[i].map_or(point, |m| m.specular_point(e.focus_a, e.focus_b));
