@@ -353,7 +353,7 @@ fn solve3(a: [[f64; 3]; 3], b: [f64; 3]) -> Option<[f64; 3]> {
 /// focus's distances but not the fixed one's, so a walk past a pole is
 /// ambiguous only when the fixed focus is on the walk's line (or as far from
 /// both images).
-fn point_ambiguous(ctx: &Ctx, ks: &[usize], at: Point) -> bool {
+pub(crate) fn point_ambiguous(ctx: &Ctx, ks: &[usize], at: Point) -> bool {
     if !ctx.collinear(ks) {
         return false;
     }

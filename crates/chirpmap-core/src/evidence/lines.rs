@@ -712,7 +712,7 @@ fn heard_ratio(ctx: &Ctx, c: &Cand, origin: Point) -> f64 {
 
 /// Whether segments `a`–`b` and `c`–`d` cross, `a`–`b` excluding a small
 /// neighbourhood of `b` (the tangency point itself).
-fn crosses(a: Point, b: Point, c: Point, d: Point) -> bool {
+pub(crate) fn crosses(a: Point, b: Point, c: Point, d: Point) -> bool {
     let r = b - a;
     let s = d - c;
     let denom = r.cross(s);
@@ -725,22 +725,24 @@ fn crosses(a: Point, b: Point, c: Point, d: Point) -> bool {
     (0.0..=1.0 - eps).contains(&t) && (0.0..=1.0).contains(&u)
 }
 
+/// The segment `p0`–`p1` (normal angle `theta`) extended at both ends by its
+/// length up to 1 m plus a quarter of it, since the ends of a wall are
+/// rarely observed: the extent over which it hides what lies behind it.
+pub(crate) fn extended(p0: Point, p1: Point, theta: f64) -> (Point, Point) {
+    let len = p0.dist(p1);
+    let n = Point::from_angle(theta);
+    let dir = if len > 0.0 { (p1 - p0) * (1.0 / len) } else { Point::new(-n.y, n.x) };
+    let grow = len.min(1.0) + 0.25 * len;
+    (p0 - dir * grow, p1 + dir * grow)
+}
+
 /// Fraction of `c`'s tangency points hidden from the source or the listener
-/// behind one of `occluders` (each extended at both ends by its length up to
-/// 1 m plus a quarter of it, since the ends of a wall are rarely observed).
+/// behind one of `occluders` (each [`extended`]).
 fn occluded_fraction(ctx: &Ctx, c: &Cand, occluders: &[&Cand]) -> f64 {
     if c.touches.is_empty() || occluders.is_empty() {
         return 0.0;
     }
-    let ext: Vec<(Point, Point)> = occluders
-        .iter()
-        .map(|o| {
-            let len = o.length();
-            let dir = if len > 0.0 { (o.p1 - o.p0) * (1.0 / len) } else { Point::new(-o.normal().y, o.normal().x) };
-            let grow = len.min(1.0) + 0.25 * len;
-            (o.p0 - dir * grow, o.p1 + dir * grow)
-        })
-        .collect();
+    let ext: Vec<(Point, Point)> = occluders.iter().map(|o| extended(o.p0, o.p1, o.theta)).collect();
     let hidden = c
         .touches
         .iter()

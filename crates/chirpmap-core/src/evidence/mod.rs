@@ -25,6 +25,7 @@ pub mod band;
 mod envelope;
 mod lines;
 pub mod tangent;
+mod vote;
 
 use crate::echo::Echo;
 use crate::ellipse::Ellipse;
@@ -414,7 +415,26 @@ pub fn map_evidence(echoes: &[Echo], spec: GridSpec, params: &EvidenceParams) ->
     let skip: Vec<bool> = explained.iter().zip(&ghost_echo).map(|(e, g)| e.is_some() || *g).collect();
     let max_points = (params.max_surfaces as usize).saturating_sub(surfaces.len());
     let mut models: Vec<Option<envelope::SmallCircle>> = vec![None; surfaces.len()];
-    for p in envelope::find_points(&ctx, &skip, max_points) {
+    let mut points = envelope::find_points(&ctx, &skip, max_points);
+    // Then reflectors the envelope misses ([`vote`]), from the echoes left.
+    let mut skip = skip;
+    for p in &points {
+        for &(k, _) in &p.touches {
+            skip[k] = true;
+        }
+    }
+    let walls: Vec<vote::Wall> = lines
+        .accepted
+        .iter()
+        .map(|l| vote::Wall {
+            at: l.surface.p0,
+            normal: Point::from_angle(l.theta),
+            extent: lines::extended(l.surface.p0, l.surface.p1, l.theta),
+            ambiguous: l.surface.ambiguous,
+        })
+        .collect();
+    points.extend(vote::vote_points(&ctx, &skip, &walls, max_points.saturating_sub(points.len())));
+    for p in points {
         models.push(p.model);
         for &(k, _) in &p.touches {
             if explained[k].is_none() {
