@@ -26,6 +26,13 @@ use crate::grid::GridSpec;
 /// memory stays bounded whatever the map's bounds and cell.
 const MAX_VOTE_CELLS: usize = 1 << 22;
 
+/// A seed needs this many times the mean votes of the covered cells: where
+/// many echoes are clutter (a long walk with two false echoes per pose:
+/// 40 000 of 120 000 echoes left after the walls, ~2 % of the poses'
+/// bands through any point), chance alone gives every cell hundreds of
+/// votes, and ten points on the walls of a room were fitted to them.
+const VOTE_SIGNIFICANCE: f64 = 3.0;
+
 /// Poses apart that still continue a run in [`in_runs`].
 const MAX_POSE_GAP: usize = 2;
 
@@ -160,6 +167,8 @@ struct Vote {
     counts: Vec<u32>,
     /// Focal-excess slack (m) that makes a band cover every cell it touches.
     slack_m: f64,
+    /// Mean votes of the cells any band covers: what chance gives a cell.
+    background: f64,
 }
 
 impl Vote {
@@ -200,10 +209,13 @@ impl Vote {
                 });
             spans.ok()?;
         }
-        Some(Vote { spec, counts, slack_m })
+        let (sum, n) = counts.iter().filter(|&&c| c > 0).fold((0u64, 0u64), |(s, n), &c| (s + u64::from(c), n + 1));
+        let background = if n > 0 { sum as f64 / n as f64 } else { 0.0 };
+        Some(Vote { spec, counts, slack_m, background })
     }
 
-    /// Cells with at least `min_support` votes, maximal among their eight
+    /// Cells with at least `min_support` votes and [`VOTE_SIGNIFICANCE`]
+    /// times the background, maximal among their eight
     /// neighbours (equal neighbours earlier in raster order win), outside
     /// carved free space: their centres, most votes first.
     fn seeds(&self, ctx: &Ctx) -> Vec<Point> {
@@ -213,7 +225,7 @@ impl Vote {
         for j in 0..ny {
             for i in 0..nx {
                 let v = self.counts[j * nx + i];
-                if v < min {
+                if v < min || f64::from(v) < VOTE_SIGNIFICANCE * self.background {
                     continue;
                 }
                 let is_max = (j.saturating_sub(1)..=(j + 1).min(ny - 1)).all(|jj| {
