@@ -427,3 +427,53 @@ fn room_walls_from_precise_echoes_whatever_the_grid() {
     }
     assert_eq!(complete, cases, "every grid gives the four walls");
 }
+
+/// The room's walls when a third of the echoes are clutter: 2 000 poses of a
+/// wandering walk, four noisy wall echoes (σ = 1 cm) and two false echoes (Δd
+/// uniform in 0.5–10 m) per pose. A point reflector needs its vote to stand
+/// out of the clutter's: seeded on any cell with `min_support` votes, the
+/// vote for points fitted two points to echoes that agree by chance.
+#[test]
+fn room_walls_in_clutter_and_nothing_else() {
+    let (w, h) = (8.0, 6.0);
+    let truth = [polygon(&[(0.0, 0.0), (w, 0.0), (w, h), (0.0, h)])];
+    let scene = ExactScene::from_obstacles(&truth);
+    let source = Point::new(2.0, 1.5);
+    let n = 2000;
+    let poses: Vec<Pose> = (0..n)
+        .map(|k| {
+            let u = 0.002 * k as f64;
+            let listener =
+                Point::new(4.0 + 2.6 * u.cos() + 0.3 * (3.1 * u).sin(), 3.0 + 1.8 * u.sin() + 0.3 * (2.3 * u).cos());
+            Pose { t_s: 0.01 * k as f64, listener }
+        })
+        .collect();
+    let mut echoes: Vec<Echo> = exact_echoes(source, &poses, &scene, &ExactOptions::default())
+        .expect("exact echoes")
+        .into_iter()
+        .map(|e| e.with_sigma_m(0.01).expect("sigma"))
+        .collect();
+    assert_eq!(echoes.len(), 4 * n);
+    let mut x = 11u64;
+    let mut uniform = || {
+        x = x.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        (x >> 11) as f64 / (1u64 << 53) as f64
+    };
+    // Wall echoes with noise of σ = 1 cm (the sum of three uniforms).
+    for e in &mut echoes {
+        e.delta_d_m += 0.02 * (uniform() + uniform() + uniform() - 1.5);
+    }
+    for p in &poses {
+        for _ in 0..2 {
+            let dd = 0.5 + 9.5 * uniform();
+            let e = Echo::new(source, p.listener, dd, 1.0, p.t_s, 0).expect("echo");
+            echoes.push(e.with_sigma_m(0.01).expect("sigma"));
+        }
+    }
+    let spec = GridSpec::from_bounds([-6.0, -6.0, 14.0, 12.0], 0.1, u128::MAX).expect("grid");
+    let map = map_evidence(&echoes, spec, &EvidenceParams::default()).expect("evidence map");
+    print_surfaces("room walls in clutter", &map.surfaces);
+    let on_wall = |p: Point| p.x.abs().min((p.x - w).abs()).min(p.y.abs()).min((p.y - h).abs()) <= 0.02;
+    assert_eq!(map.surfaces.len(), 4, "four walls and nothing else");
+    assert!(map.surfaces.iter().all(|s| s.kind == SurfaceKind::Line && on_wall(s.p0) && on_wall(s.p1)));
+}
