@@ -26,13 +26,6 @@ use crate::grid::GridSpec;
 /// memory stays bounded whatever the map's bounds and cell.
 const MAX_VOTE_CELLS: usize = 1 << 22;
 
-/// A seed needs this many times the mean votes of the covered cells: where
-/// many echoes are clutter (a long walk with two false echoes per pose:
-/// 40 000 of 120 000 echoes left after the walls, ~2 % of the poses'
-/// bands through any point), chance alone gives every cell hundreds of
-/// votes, and ten points on the walls of a room were fitted to them.
-const VOTE_SIGNIFICANCE: f64 = 3.0;
-
 /// Poses apart that still continue a run in [`in_runs`].
 const MAX_POSE_GAP: usize = 2;
 
@@ -47,6 +40,7 @@ const FIT_ITERATIONS: usize = 50;
 pub(crate) fn vote_points(ctx: &Ctx, skip: &[bool], walls: &[Wall], max_points: usize) -> Vec<PointOut> {
     let p = ctx.params;
     let left: Vec<usize> = (0..ctx.preps.len()).filter(|&k| !skip[k] && !image_echo(ctx, k, walls)).collect();
+    let trusted: Vec<Wall> = walls.iter().filter(|w| !w.ambiguous).copied().collect();
     let walls: Vec<(Point, Point)> = walls.iter().map(|w| w.extent).collect();
     let walls = &walls[..];
     if max_points == 0 || distinct_meas(ctx, &left) < p.min_support as usize {
@@ -67,7 +61,14 @@ pub(crate) fn vote_points(ctx: &Ctx, skip: &[bool], walls: &[Wall], max_points: 
             continue;
         }
         let Some((at, ks)) = trimmed_fit(ctx, seed, through) else { continue };
-        if ctx.spec.cell_of(at).is_none() || ctx.is_free(at) || hidden(ctx, &ks, at, walls) {
+        // On the line of a found wall that is not ambiguous (within the
+        // cluster radius), the echoes are the wall's own that its runs
+        // missed, often where it goes on beyond the stretch its runs saw:
+        // no new reflector. (An ambiguous line of a straight pass may be a
+        // large circle's stand-in; a point beside it can place the circle
+        // better.)
+        let on_wall = trusted.iter().any(|w| (at - w.at).dot(w.normal).abs() <= p.point_radius_m);
+        if ctx.spec.cell_of(at).is_none() || ctx.is_free(at) || on_wall || hidden(ctx, &ks, at, walls) {
             continue;
         }
         // Echoes of the measurements not yet in the fit that it explains.
@@ -167,8 +168,6 @@ struct Vote {
     counts: Vec<u32>,
     /// Focal-excess slack (m) that makes a band cover every cell it touches.
     slack_m: f64,
-    /// Mean votes of the cells any band covers: what chance gives a cell.
-    background: f64,
 }
 
 impl Vote {
@@ -209,13 +208,10 @@ impl Vote {
                 });
             spans.ok()?;
         }
-        let (sum, n) = counts.iter().filter(|&&c| c > 0).fold((0u64, 0u64), |(s, n), &c| (s + u64::from(c), n + 1));
-        let background = if n > 0 { sum as f64 / n as f64 } else { 0.0 };
-        Some(Vote { spec, counts, slack_m, background })
+        Some(Vote { spec, counts, slack_m })
     }
 
-    /// Cells with at least `min_support` votes and [`VOTE_SIGNIFICANCE`]
-    /// times the background, maximal among their eight
+    /// Cells with at least `min_support` votes, maximal among their eight
     /// neighbours (equal neighbours earlier in raster order win), outside
     /// carved free space: their centres, most votes first.
     fn seeds(&self, ctx: &Ctx) -> Vec<Point> {
@@ -225,7 +221,7 @@ impl Vote {
         for j in 0..ny {
             for i in 0..nx {
                 let v = self.counts[j * nx + i];
-                if v < min || f64::from(v) < VOTE_SIGNIFICANCE * self.background {
+                if v < min {
                     continue;
                 }
                 let is_max = (j.saturating_sub(1)..=(j + 1).min(ny - 1)).all(|jj| {
@@ -288,8 +284,11 @@ fn trimmed_fit(ctx: &Ctx, start: Point, mut ks: Vec<usize>) -> Option<(Point, Ve
             if runs.len() == ks.len() {
                 return Some((at, ks));
             }
-            // Refit to the echoes of runs of poses alone.
-            if runs.len() < min {
+            // Refit to the echoes of runs of poses alone, unless most of
+            // the fit's echoes are not in runs: a reflector is heard pose
+            // after pose, while echoes that agree by chance (clutter) are
+            // scattered along the walk and only a few fall in runs.
+            if runs.len() < min || 3 * runs.len() < ks.len() {
                 return None;
             }
             ks = runs;
