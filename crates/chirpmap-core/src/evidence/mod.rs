@@ -433,7 +433,8 @@ pub fn map_evidence(echoes: &[Echo], spec: GridSpec, params: &EvidenceParams) ->
             ambiguous: l.surface.ambiguous,
         })
         .collect();
-    points.extend(vote::vote_points(&ctx, &skip, &walls, max_points.saturating_sub(points.len())));
+    let voted = vote::vote_points(&ctx, &skip, &walls, &points, max_points.saturating_sub(points.len()));
+    points.extend(voted);
     for p in points {
         models.push(p.model);
         for &(k, _) in &p.touches {

@@ -7,26 +7,30 @@
 //! Table I's 50 ms sampling: its particles return from across the face),
 //! those crossings fall metres apart and never pile up, although every pose
 //! heard the reflector and its bands still overlap there. This step counts,
-//! on a grid of band-wide cells, the measurements whose band (Δd ± kσ, plus
-//! the cell's size) covers each cell, the vote of the generalised Hough
-//! transform (Ballard 1981) on the bands Algorithm 1 draws as lines; a
-//! local maximum heard by `min_support` measurements, outside carved free
-//! space, seeds a point reflector fitted to the echoes through it by
-//! Gauss–Newton. An echo more than kσ off the fit is dropped, worst first,
-//! while `min_support` measurements remain (a rough face's stray
-//! returns); a seed left with fewer is no reflector.
+//! on a grid of cells as wide as the echoes' median band half-width kσ (at
+//! least the map's cell), the measurements whose band (Δd ± kσ, plus √2
+//! cells) covers each cell: the vote of the generalised Hough transform
+//! (Ballard 1981) on the bands Algorithm 1 draws as lines. A local maximum
+//! heard by `min_support` measurements, outside carved free space, seeds a
+//! point reflector fitted by Gauss–Newton to the echo of each measurement
+//! whose band holds the seed ([`trimmed_fit`]: a rough face's stray returns
+//! are trimmed, and the echoes must come from runs of poses). The fit must
+//! keep half the echoes through its seed, and is refused in free space,
+//! behind or on a found wall, or next to a reflector already found.
+//! docs/evidence-mapper.md §3 gives the measurements behind each rule.
 
 use super::envelope::PointOut;
 use super::lines::crosses;
 use super::{Ctx, Surface, SurfaceKind, for_each_band_span};
-use crate::geometry::Point;
+use crate::geometry::{Point, point_segment_distance};
 use crate::grid::GridSpec;
 
 /// Largest vote grid (cells): beyond it the vote's cells are coarsened, so
 /// memory stays bounded whatever the map's bounds and cell.
 const MAX_VOTE_CELLS: usize = 1 << 22;
 
-/// Poses apart that still continue a run in [`in_runs`].
+/// Measurements apart (in one listener's order) that still continue a run
+/// in [`in_runs`].
 const MAX_POSE_GAP: usize = 2;
 
 /// Rounds of fitting and trimming before a seed is given up.
@@ -35,59 +39,98 @@ const MAX_TRIM_ROUNDS: usize = 24;
 /// Gauss–Newton iterations of a point fit.
 const FIT_ITERATIONS: usize = 50;
 
+/// Seeds examined at most: each costs a pass over the echoes left, and on a
+/// fine grid of precise echoes amid clutter the vote has tens of thousands
+/// of local maxima (56 711 on a 20 000-pose walk with two false echoes per
+/// pose at σ = 2 mm and 1 cm cells, 15 s for this step before the cap).
+const MAX_SEEDS: usize = 1024;
+
 /// Point reflectors from the echoes neither skipped (explained or ghosts)
-/// nor used, at most `max_points`, strongest vote first.
-pub(crate) fn vote_points(ctx: &Ctx, skip: &[bool], walls: &[Wall], max_points: usize) -> Vec<PointOut> {
+/// nor explained by the compact reflectors already `found` (their fitted
+/// circles), at most `max_points`, strongest vote first. `walls` are the
+/// lines found.
+pub(crate) fn vote_points(
+    ctx: &Ctx,
+    skip: &[bool],
+    walls: &[Wall],
+    found: &[PointOut],
+    max_points: usize,
+) -> Vec<PointOut> {
     let p = ctx.params;
-    let left: Vec<usize> = (0..ctx.preps.len()).filter(|&k| !skip[k] && !image_echo(ctx, k, walls)).collect();
-    let trusted: Vec<Wall> = walls.iter().filter(|w| !w.ambiguous).copied().collect();
-    let walls: Vec<(Point, Point)> = walls.iter().map(|w| w.extent).collect();
-    let walls = &walls[..];
-    if max_points == 0 || distinct_meas(ctx, &left) < p.min_support as usize {
+    if max_points == 0 {
         return Vec::new();
     }
+    let trusted: Vec<Wall> = walls.iter().filter(|w| !w.ambiguous).copied().collect();
+    let reach: Vec<(Point, Point)> = trusted.iter().map(|w| w.reach_to_corners(&trusted)).collect();
+    // In measurement order: one vote per measurement and one echo per
+    // measurement below rely on it.
+    let mut left: Vec<usize> = (0..ctx.preps.len())
+        .filter(|&k| !skip[k] && !explained_by(ctx, k, found) && !image_echo(ctx, k, &trusted, &reach))
+        .collect();
+    left.sort_by_key(|&k| (ctx.preps[k].meas, k));
+    if distinct_meas(ctx, &left) < p.min_support as usize {
+        return Vec::new();
+    }
+    let extents: Vec<(Point, Point)> = walls.iter().map(|w| w.extent).collect();
     let Some(vote) = Vote::count(ctx, &left) else { return Vec::new() };
     let mut used = vec![false; ctx.preps.len()];
-    let mut tried: std::collections::HashSet<Vec<usize>> = std::collections::HashSet::new();
+    // Hashes of the echo sets tried: neighbouring seeds of one ridge of the
+    // vote often hold the same echoes, and a set that failed once fails
+    // again.
+    let mut tried: std::collections::HashSet<u64> = std::collections::HashSet::new();
+    // Reflectors so far; a seed or fit within two cluster radii of one is
+    // that reflector's leftover echoes (a pillar is no point at σ = 1 cm).
+    let mut reflectors: Vec<Point> = found.iter().map(|f| f.surface.p0).collect();
+    let near_reflector =
+        |q: Point, reflectors: &[Point]| reflectors.iter().any(|r| r.dist(q) <= 2.0 * p.point_radius_m);
     let mut out = Vec::new();
-    for seed in vote.seeds(ctx) {
+    for seed in vote.seeds(ctx).into_iter().take(MAX_SEEDS) {
         if out.len() >= max_points {
             break;
         }
+        if near_reflector(seed, &reflectors) {
+            continue;
+        }
         let through = nearest_per_meas(ctx, &left, &used, seed, vote.slack_m);
-        // Neighbouring seeds of one ridge of the vote often hold the same
-        // echoes; a set that failed once fails again.
-        if through.len() < p.min_support as usize || !tried.insert(through.clone()) {
+        if through.len() < p.min_support as usize || !tried.insert(hash_of(&through)) {
             continue;
         }
+        let n_through = through.len();
         let Some((at, ks)) = trimmed_fit(ctx, seed, through) else { continue };
-        // On the line of a found wall that is not ambiguous (within the
-        // cluster radius), the echoes are the wall's own that its runs
-        // missed, often where it goes on beyond the stretch its runs saw:
-        // no new reflector. (An ambiguous line of a straight pass may be a
-        // large circle's stand-in; a point beside it can place the circle
-        // better.)
-        let on_wall = trusted.iter().any(|w| (at - w.at).dot(w.normal).abs() <= p.point_radius_m);
-        if ctx.spec.cell_of(at).is_none() || ctx.is_free(at) || on_wall || hidden(ctx, &ks, at, walls) {
+        // Consensus, as in RANSAC (Fischler and Bolles 1981): at least half
+        // the echoes through the seed must fit the point. A reflector that
+        // is no point at the echoes' σ (a 0.3 m pillar at σ = 1 cm), or the
+        // higher-order echoes of a pillar and a wall, leaves a few echoes
+        // that fit a point somewhere near by chance; seven such points
+        // appeared on a dense room walk with a pillar and clutter.
+        if 2 * ks.len() < n_through {
             continue;
         }
-        // Echoes of the measurements not yet in the fit that it explains.
-        let mut ks = ks;
-        let mut seen: std::collections::BTreeSet<usize> = ks.iter().map(|&k| ctx.preps[k].meas).collect();
-        for k in nearest_per_meas(ctx, &left, &used, at, 0.0) {
-            if seen.insert(ctx.preps[k].meas) {
-                ks.push(k);
-            }
+        // On a found wall that is not ambiguous (within the cluster radius
+        // of it, continued to its corners with the other such walls), the
+        // echoes are the wall's own that its runs missed: no new reflector.
+        // (An ambiguous line of a straight pass may be a large circle's
+        // stand-in; a point beside it can place the circle better.)
+        let on_wall = reach.iter().any(|&(q0, q1)| point_segment_distance(at, q0, q1) <= p.point_radius_m);
+        if ctx.spec.cell_of(at).is_none()
+            || ctx.is_free(at)
+            || on_wall
+            || near_reflector(at, &reflectors)
+            || hidden(ctx, &ks, at, &extents)
+        {
+            continue;
         }
+        let ks = extend_runs(ctx, ks, nearest_per_meas(ctx, &left, &used, at, 0.0));
         for &k in &ks {
             used[k] = true;
         }
+        reflectors.push(at);
         out.push(PointOut {
             surface: Surface {
                 kind: SurfaceKind::Point,
                 p0: at,
                 p1: at,
-                support: seen.len(),
+                support: ks.len(),
                 ambiguous: super::envelope::point_ambiguous(ctx, &ks, at),
             },
             touches: ks.iter().map(|&k| (k, at)).collect(),
@@ -97,11 +140,61 @@ pub(crate) fn vote_points(ctx: &Ctx, skip: &[bool], walls: &[Wall], max_points: 
     out
 }
 
+/// A hash of an echo set (the `tried` sets hold hashes, not the sets).
+fn hash_of(ks: &[usize]) -> u64 {
+    use std::hash::{Hash, Hasher};
+    let mut h = std::collections::hash_map::DefaultHasher::new();
+    ks.hash(&mut h);
+    h.finish()
+}
+
+/// Whether a compact reflector already found predicts echo `k`'s Δd within
+/// its band (the fitted circle of [`super::envelope`]).
+fn explained_by(ctx: &Ctx, k: usize, found: &[PointOut]) -> bool {
+    let prep = &ctx.preps[k];
+    let e = &prep.ellipse;
+    found.iter().filter_map(|f| f.model).any(|m| {
+        m.predict(e.focus_a, e.focus_b)
+            .is_some_and(|(pred, _)| (e.delta_d_m - pred).abs() <= ctx.params.band_sigmas * prep.sigma_m)
+    })
+}
+
+/// `ks` (one echo per measurement, in measurement order) with each echo of
+/// `more` (likewise) whose measurement is not in `ks` and continues one of
+/// its runs (same listener, within [`MAX_POSE_GAP`] of a measurement of
+/// `ks` or of one added before it), in measurement order.
+fn extend_runs(ctx: &Ctx, ks: Vec<usize>, more: Vec<usize>) -> Vec<usize> {
+    let key = |k: usize| {
+        let m = &ctx.meas[ctx.preps[k].meas];
+        (m.listener_id, m.seq)
+    };
+    let mut have: std::collections::BTreeSet<(u32, usize)> = ks.iter().map(|&k| key(k)).collect();
+    let mut all = ks;
+    // Forward and backward, so that a run grows at both ends.
+    for pass in 0..2 {
+        let order: Vec<usize> = if pass == 0 { more.clone() } else { more.iter().rev().copied().collect() };
+        for k in order {
+            let (l, seq) = key(k);
+            if have.contains(&(l, seq)) {
+                continue;
+            }
+            let lo = seq.saturating_sub(MAX_POSE_GAP);
+            if have.range((l, lo)..=(l, seq + MAX_POSE_GAP)).next().is_some() {
+                have.insert((l, seq));
+                all.push(k);
+            }
+        }
+    }
+    all.sort_by_key(|&k| ctx.preps[k].meas);
+    all
+}
+
 /// A found wall, as the vote sees it.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Wall {
-    /// A point of its line and the line's unit normal.
+    /// A point of its line.
     pub at: Point,
+    /// The line's unit normal.
     pub normal: Point,
     /// The stretch over which it hides what lies behind it.
     pub extent: (Point, Point),
@@ -113,28 +206,80 @@ impl Wall {
     fn mirror(&self, p: Point) -> Point {
         p - self.normal * (2.0 * (p - self.at).dot(self.normal))
     }
+
+    /// The extent continued along the line to the nearest crossing with
+    /// another of `walls`' lines beyond each end (a room's corner), where
+    /// there is one: walls are seen over a stretch, but they go on to the
+    /// next wall.
+    fn reach_to_corners(&self, walls: &[Wall]) -> (Point, Point) {
+        let (q0, q1) = self.extent;
+        let len = q0.dist(q1);
+        // (A NaN length fails the comparison too.)
+        if len.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+            return self.extent;
+        }
+        let d = (q1 - q0) * (1.0 / len);
+        let (mut lo, mut hi) = (None::<f64>, None::<f64>);
+        for v in walls {
+            let den = d.dot(v.normal);
+            // Parallel (or the wall itself): no corner.
+            if den.abs() < 1e-6 {
+                continue;
+            }
+            let t = (v.at - q0).dot(v.normal) / den;
+            if t > len {
+                hi = Some(hi.map_or(t, |h| h.min(t)));
+            } else if t < 0.0 {
+                lo = Some(lo.map_or(t, |l| l.max(t)));
+            }
+        }
+        (q0 + d * lo.unwrap_or(0.0), q0 + d * hi.unwrap_or(len))
+    }
+}
+
+/// Where the segment `a`–`b` crosses the line of `w`, if it does.
+fn crossing(a: Point, b: Point, w: &Wall) -> Option<Point> {
+    let (fa, fb) = ((a - w.at).dot(w.normal), (b - w.at).dot(w.normal));
+    if fa * fb > 0.0 || fa == fb {
+        return None;
+    }
+    Some(a + (b - a) * (fa / (fa - fb)))
 }
 
 /// Whether echo `k`'s Δd is, within its band, that of a second-order image
-/// of its source in two of the walls that are not ambiguous (the
-/// image-source model of room acoustics, Allen and Berkley 1979): a
-/// corner's or two parallel walls' second reflection. Such an echo is no
-/// evidence of a reflector of its own; the room with a pillar of `chirpmap
-/// benchmark maps` otherwise gathered its corners' second reflections into
-/// points outside the room. First-order images are left out: a short line
-/// fitted beside a circle (the loop past circles) explained that circle's
-/// leftover echoes by its image and so hid a compact reflector.
-fn image_echo(ctx: &Ctx, k: usize, walls: &[Wall]) -> bool {
+/// of its source in two of the `trusted` walls (not ambiguous; `reach[i]` is
+/// wall `i` continued to its corners), with both bounces on the walls' reach
+/// (the image-source model of room acoustics, Allen and Berkley 1979, with
+/// its visibility test): a corner's or two parallel walls' second
+/// reflection. Such an echo is no evidence of a reflector of its own; the
+/// room with a pillar of `chirpmap benchmark maps` otherwise gathered its
+/// corners' second reflections into points outside the room. First-order
+/// images are left out: a short line fitted beside a circle (the loop past
+/// circles) explained that circle's leftover echoes by its image and so hid
+/// a compact reflector.
+fn image_echo(ctx: &Ctx, k: usize, trusted: &[Wall], reach: &[(Point, Point)]) -> bool {
     let prep = &ctx.preps[k];
     let e = &prep.ellipse;
     let (s, l) = (e.focus_a, e.focus_b);
     let direct = s.dist(l);
     let tol = ctx.params.band_sigmas * prep.sigma_m;
-    let fits = |image: Point| (image.dist(l) - direct - e.delta_d_m).abs() <= tol;
-    let trusted: Vec<&Wall> = walls.iter().filter(|w| !w.ambiguous).collect();
+    let margin = ctx.params.point_radius_m;
+    let on = |q: Point, i: usize| point_segment_distance(q, reach[i].0, reach[i].1) <= margin;
     trusted.iter().enumerate().any(|(a, wa)| {
         let first = wa.mirror(s);
-        trusted.iter().enumerate().any(|(b, wb)| a != b && fits(wb.mirror(first)))
+        trusted.iter().enumerate().any(|(b, wb)| {
+            if a == b {
+                return false;
+            }
+            let image = wb.mirror(first);
+            if (image.dist(l) - direct - e.delta_d_m).abs() > tol {
+                return false;
+            }
+            // Listener → bounce on b → bounce on a → source.
+            let Some(on_b) = crossing(l, image, wb) else { return false };
+            let Some(on_a) = crossing(on_b, first, wa) else { return false };
+            on(on_b, b) && on(on_a, a)
+        })
     })
 }
 
@@ -240,8 +385,9 @@ impl Vote {
     }
 }
 
-/// Of each measurement, the echo of `left` not `used` whose band (plus
-/// `slack_m`) holds `at`, nearest to it in σ; in measurement order.
+/// Of each measurement, the echo of `left` (in measurement order) not
+/// `used` whose band (plus `slack_m`) holds `at`, nearest to it in σ; in
+/// measurement order.
 fn nearest_per_meas(ctx: &Ctx, left: &[usize], used: &[bool], at: Point, slack_m: f64) -> Vec<usize> {
     let band = ctx.params.band_sigmas;
     let mut best: Vec<(usize, f64, usize)> = Vec::new();
@@ -255,19 +401,27 @@ fn nearest_per_meas(ctx: &Ctx, left: &[usize], used: &[bool], at: Point, slack_m
             continue;
         }
         let z = miss / prep.sigma_m;
-        match best.iter_mut().find(|b| b.0 == prep.meas) {
-            Some(b) if z < b.1 => *b = (prep.meas, z, k),
-            Some(_) => {}
-            None => best.push((prep.meas, z, k)),
+        match best.last_mut() {
+            Some(b) if b.0 == prep.meas => {
+                if z < b.1 {
+                    *b = (prep.meas, z, k);
+                }
+            }
+            _ => best.push((prep.meas, z, k)),
         }
     }
-    best.sort_by_key(|b| b.0);
     best.into_iter().map(|b| b.2).collect()
 }
 
-/// A point reflector fitted to `ks` from `start`, dropping the worst echo
-/// while any lies more than kσ off and `min_support` remain. `None` when
-/// the fit fails or too few echoes remain.
+/// A point reflector fitted to `ks` (one echo per measurement, in
+/// measurement order) from `start`. While any echo lies more than kσ off
+/// the fit, the worst eighth of them (at least one, only those off, never
+/// below `min_support` echoes) are dropped and the point refitted, for at
+/// most [`MAX_TRIM_ROUNDS`] rounds. Once all fit, the echoes outside runs
+/// ([`in_runs`]) are dropped and the point refitted, unless fewer than
+/// `min_support`, or fewer than a third of them, are in runs (echoes that
+/// agree by chance are scattered along the walk). `None` when the fit
+/// fails or any of these refuses it.
 fn trimmed_fit(ctx: &Ctx, start: Point, mut ks: Vec<usize>) -> Option<(Point, Vec<usize>)> {
     let p = ctx.params;
     let min = p.min_support as usize;
@@ -312,13 +466,15 @@ fn trimmed_fit(ctx: &Ctx, start: Point, mut ks: Vec<usize>) -> Option<(Point, Ve
 }
 
 /// The echoes of `ks` (one per measurement, in measurement order) whose
-/// measurements lie in runs of at least `min_run` poses of one listener,
-/// each within [`MAX_POSE_GAP`] poses of the previous: a reflector is
-/// heard from neighbouring poses, as a wall is ([`super::lines`]), and a
-/// stray echo far along the walk pins a fit anywhere (seen on the loop past
-/// circles: four echoes of consecutive poses and one 50 poses later fitted
-/// a point 20 m from every circle). One pose may miss the echo (sparse
-/// poses of a rough reflector: Table I at 50 ms).
+/// measurements lie in runs of at least `min_run` measurements of one
+/// listener, each within [`MAX_POSE_GAP`] of the previous in that
+/// listener's order: a reflector is heard from neighbouring poses, as a
+/// wall is ([`super::lines`]), and a stray echo far along the walk pins a
+/// fit anywhere (seen on the loop past circles: four echoes of consecutive
+/// poses and one 50 poses later fitted a point 20 m from every circle). One
+/// measurement may miss the echo (sparse poses of a rough reflector: Table I
+/// at 50 ms). A pose that heard nothing is no measurement, so it does not
+/// count as a gap.
 fn in_runs(ctx: &Ctx, ks: &[usize]) -> Vec<usize> {
     let min_run = ctx.params.min_run as usize;
     let mut keep = Vec::new();
