@@ -323,7 +323,10 @@ impl Vote {
         let tau = taus[taus.len() / 2];
         let s = &ctx.spec;
         let (w, h) = (s.x_max_m() - s.x_min_m, s.y_max_m() - s.y_min_m);
-        let mut cell = tau.max(s.cell_m);
+        // At least a quarter of the cluster radius: the vote only seeds the
+        // fit, and finer cells multiply its work by the square (1 cm cells
+        // with σ = 2 mm: a 28 m map's vote took seconds).
+        let mut cell = tau.max(s.cell_m).max(0.25 * p.point_radius_m);
         if (w / cell) * (h / cell) > MAX_VOTE_CELLS as f64 {
             cell = (w * h / MAX_VOTE_CELLS as f64).sqrt();
         }
