@@ -8,7 +8,8 @@
 //! those crossings fall metres apart and never pile up, although every pose
 //! heard the reflector and its bands still overlap there. This step counts,
 //! on a grid of cells as wide as the echoes' median band half-width kσ (at
-//! least the map's cell), the measurements whose band (Δd ± kσ, plus √2
+//! least the map's cell and a quarter of the cluster radius), the
+//! measurements whose band (Δd ± kσ, plus √2
 //! cells) covers each cell: the vote of the generalised Hough transform
 //! (Ballard 1981) on the bands Algorithm 1 draws as lines. A local maximum
 //! heard by `min_support` measurements, outside carved free space, seeds a
