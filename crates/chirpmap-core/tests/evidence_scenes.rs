@@ -447,7 +447,7 @@ fn room_walls_in_clutter_and_nothing_else() {
 /// The same walk with a 0.3 m pillar in the room. The envelope leaves four
 /// points more than 0.35 m off every true surface here (higher-order
 /// echoes of pillar and walls; a known limit); the vote for points must
-/// add none: without its consensus rule it added five such points.
+/// add none: without its consensus rule it added six such points.
 #[test]
 fn pillar_in_clutter_gets_no_stray_points_from_the_vote() {
     let (w, h) = (8.0, 6.0);
