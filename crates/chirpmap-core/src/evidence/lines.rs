@@ -442,21 +442,7 @@ fn touches_in_runs(ctx: &Ctx, set: &[usize], theta: f64, rho: f64, origin: Point
     // Runs over (listener, seq); measurements are sorted by (listener, t), so
     // consecutive measurement indices of one listener are consecutive poses.
     let ms: Vec<usize> = best.iter().map(|b| b.0).collect();
-    let min_run = ctx.params.min_run as usize;
-    let mut keep = Vec::new();
-    let mut start = 0;
-    for i in 1..=ms.len() {
-        let breaks = i == ms.len() || {
-            let (a, b) = (&ctx.meas[ms[i - 1]], &ctx.meas[ms[i]]);
-            a.listener_id != b.listener_id || b.seq != a.seq + 1
-        };
-        if breaks {
-            if i - start >= min_run {
-                keep.extend(start..i);
-            }
-            start = i;
-        }
-    }
+    let keep = ctx.in_runs(&ms, 1);
     keep.iter().map(|&i| (best[i].1, best[i].2)).collect()
 }
 

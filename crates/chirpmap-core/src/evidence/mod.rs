@@ -267,6 +267,28 @@ impl Ctx<'_> {
         self.free_at(p) <= 2.0 * self.params.free_logodds + 1e-12
     }
 
+    /// Positions in `ms` (measurement indices, increasing) of the
+    /// measurements inside runs of at least `min_run` of one listener, each
+    /// at most `max_gap` after the previous in that listener's order.
+    pub fn in_runs(&self, ms: &[usize], max_gap: usize) -> Vec<usize> {
+        let min_run = self.params.min_run as usize;
+        let mut keep = Vec::new();
+        let mut start = 0;
+        for i in 1..=ms.len() {
+            let breaks = i == ms.len() || {
+                let (a, b) = (&self.meas[ms[i - 1]], &self.meas[ms[i]]);
+                a.listener_id != b.listener_id || b.seq > a.seq + max_gap
+            };
+            if breaks {
+                if i - start >= min_run {
+                    keep.extend(start..i);
+                }
+                start = i;
+            }
+        }
+        keep
+    }
+
     /// Whether the foci of `echoes` are collinear within `collinear_tol_m`:
     /// listeners when all sources coincide, sources when all listeners do,
     /// all foci otherwise.

@@ -9,8 +9,8 @@
 //! heard the reflector and its bands still overlap there. This step counts,
 //! on a grid of cells as wide as the echoes' median band half-width kσ (at
 //! least the map's cell and a quarter of the cluster radius), the
-//! measurements whose band (Δd ± kσ, plus √2
-//! cells) covers each cell: the vote of the generalised Hough transform
+//! measurements whose band (Δd ± kσ, plus √2 cells) covers each cell: the
+//! vote of the generalised Hough transform
 //! (Ballard 1981) on the bands Algorithm 1 draws as lines. A local maximum
 //! heard by `min_support` measurements, outside carved free space, seeds a
 //! point reflector fitted by Gauss–Newton to the echo of each measurement
@@ -102,8 +102,9 @@ pub(crate) fn vote_points(
         // the echoes through the seed must fit the point. A reflector that
         // is no point at the echoes' σ (a 0.3 m pillar at σ = 1 cm), or the
         // higher-order echoes of a pillar and a wall, leaves a few echoes
-        // that fit a point somewhere near by chance; seven such points
-        // appeared on a dense room walk with a pillar and clutter.
+        // that fit a point somewhere near by chance; six such points
+        // appeared on a dense room walk with a pillar and clutter (test
+        // `pillar_in_clutter_gets_no_stray_points_from_the_vote`).
         if 2 * ks.len() < n_through {
             continue;
         }
@@ -480,22 +481,8 @@ fn trimmed_fit(ctx: &Ctx, start: Point, mut ks: Vec<usize>) -> Option<(Point, Ve
 /// at 50 ms). A pose that heard nothing is no measurement, so it does not
 /// count as a gap.
 fn in_runs(ctx: &Ctx, ks: &[usize]) -> Vec<usize> {
-    let min_run = ctx.params.min_run as usize;
-    let mut keep = Vec::new();
-    let mut start = 0;
-    for i in 1..=ks.len() {
-        let breaks = i == ks.len() || {
-            let (a, b) = (&ctx.meas[ctx.preps[ks[i - 1]].meas], &ctx.meas[ctx.preps[ks[i]].meas]);
-            a.listener_id != b.listener_id || b.seq > a.seq + MAX_POSE_GAP
-        };
-        if breaks {
-            if i - start >= min_run {
-                keep.extend_from_slice(&ks[start..i]);
-            }
-            start = i;
-        }
-    }
-    keep
+    let ms: Vec<usize> = ks.iter().map(|&k| ctx.preps[k].meas).collect();
+    ctx.in_runs(&ms, MAX_POSE_GAP).into_iter().map(|i| ks[i]).collect()
 }
 
 /// Weighted least-squares position of a point reflector for the echoes
@@ -515,7 +502,8 @@ fn fit_point(ctx: &Ctx, ks: &[usize], start: Point) -> Option<Point> {
             }
             let j = da * (1.0 / na) + db * (1.0 / nb);
             let w = 1.0 / (prep.sigma_m * prep.sigma_m);
-            let r = -excess(e, at);
+            // Minus the focal excess ([`excess`], from the norms at hand).
+            let r = -(na + nb - 2.0 * e.semi_major_m);
             a11 += w * j.x * j.x;
             a12 += w * j.x * j.y;
             a22 += w * j.y * j.y;
