@@ -7,9 +7,10 @@
 //! extracts its highlights (threshold + local maxima); the evidence mapper
 //! runs `map_evidence` (free space, tangent-line vote, envelope points, final
 //! map, highlights). Scenes: the 8 m × 6 m room with a pillar and corner
-//! echoes (160 poses, ~1760 echoes, 14 m × 12 m grid at 0.1 m) and the loop
-//! past three circles (160 poses, 480 echoes, 55 m × 50 m grid at 0.1 m), both
-//! from `chirpmap_core::exact`.
+//! echoes (160 poses, ~1760 echoes, 14 m × 12 m grid at 0.1 m), the loop
+//! past three circles (160 poses, 480 echoes, 55 m × 50 m grid at 0.1 m) and
+//! the L-shaped corridor of `chirpmap benchmark maps` (471 echoes), all from
+//! `chirpmap_core::exact`.
 
 use chirpmap_core::exact::{ExactOptions, ExactScene, Pose, exact_echoes};
 use chirpmap_core::{
@@ -57,6 +58,25 @@ fn circles() -> (Vec<Echo>, GridSpec) {
     (echoes, GridSpec::from_bounds([-25.0, -40.0, 30.0, 10.0], 0.1, u128::MAX).expect("grid"))
 }
 
+/// The L-shaped corridor of `chirpmap benchmark maps`: 2 m wide, source at
+/// (1, 1), poses every 0.1 m along (2, 1.2) → (12.9, 1.2) → (12.9, 11)
+/// (the second leg is out of the source's sight), 471 echoes, 20 m × 18 m
+/// grid at 0.1 m.
+fn corridor() -> (Vec<Echo>, GridSpec) {
+    let v = [(0.0, 0.0), (14.0, 0.0), (14.0, 12.0), (12.0, 12.0), (12.0, 2.0), (0.0, 2.0)];
+    let outer = Polygon::new(v.iter().map(|&(x, y)| Point::new(x, y)).collect()).expect("corridor");
+    let legs = [(Point::new(2.0, 1.2), Point::new(12.9, 1.2)), (Point::new(12.9, 1.2), Point::new(12.9, 11.0))];
+    let mut at = Vec::new();
+    for (a, b) in legs {
+        let n = (a.dist(b) / 0.1).round() as usize;
+        at.extend((0..n).map(|i| a + (b - a) * (i as f64 / n as f64)));
+    }
+    let poses: Vec<Pose> = at.into_iter().enumerate().map(|(i, listener)| Pose { t_s: i as f64, listener }).collect();
+    let scene = ExactScene::from_obstacles(&[obstacle(Shape::Polygon(outer))]);
+    let echoes = exact_echoes(Point::new(1.0, 1.0), &poses, &scene, &ExactOptions::default()).expect("echoes");
+    (echoes, GridSpec::from_bounds([-3.0, -3.0, 17.0, 15.0], 0.1, u128::MAX).expect("grid"))
+}
+
 fn paper(echoes: &[Echo], spec: GridSpec) -> usize {
     let mut m = AccumulationMapper::new(spec, MappingParams::default()).expect("mapper");
     for e in echoes {
@@ -90,5 +110,17 @@ fn circles_paper(bencher: divan::Bencher) {
 #[divan::bench(sample_count = 10)]
 fn circles_evidence(bencher: divan::Bencher) {
     let (echoes, spec) = circles();
+    bencher.bench_local(|| evidence(&echoes, spec));
+}
+
+#[divan::bench(sample_count = 10)]
+fn corridor_paper(bencher: divan::Bencher) {
+    let (echoes, spec) = corridor();
+    bencher.bench_local(|| paper(&echoes, spec));
+}
+
+#[divan::bench(sample_count = 10)]
+fn corridor_evidence(bencher: divan::Bencher) {
+    let (echoes, spec) = corridor();
     bencher.bench_local(|| evidence(&echoes, spec));
 }
