@@ -632,21 +632,6 @@ fn unheard_at_peak(ghost_fraction: f64) -> f64 {
     0.5 * (1.0 - ghost_fraction)
 }
 
-/// A peak whose tangency points (those of [`touches_in_runs`] at the peak's
-/// own line) span less than this fraction of `min_line_length_m` is not
-/// refined. A reflector seen at one spot from many poses (a wall the pass
-/// meets along its normal, a compact reflector) votes for a fan of lines
-/// through that spot, each tangent to many ellipses there; in the L-corridor
-/// of `chirpmap benchmark maps` 82 of 201 refined peaks start shorter than
-/// this, and refinement rarely makes one a line. A wall's peak, up to half a
-/// bin off its angle, still gathers the stretch where the tilt stays within
-/// the band, metres for the bands the mapper sees. At 1/2 the same lines
-/// are accepted (test `short_peaks_of_the_corridor_are_spared`), and
-/// `benchmark maps --runs 100` and the room walks of docs/evidence-mapper.md
-/// give the same surfaces and maps as without the screen; at
-/// 1 the Table I rows change, and at 2 the corridor's lines.
-const SHORT_AT_PEAK: f64 = 0.5;
-
 /// How many standard errors a sagitta must reach to count as a bend: 2 took
 /// Table I at 50 ms from score_obstacle 0.520 to 0.586 and changed no other
 /// case of `chirpmap benchmark maps`; 3 cost the loop past circles and the
@@ -1082,9 +1067,8 @@ fn hough_peaks(ctx: &Ctx, tan: &Tangents, g: &Geom) -> Vec<(f32, usize, usize)> 
 /// test rejects it afterwards anyway, and a tilt of the line (the peak's
 /// angle is off by up to half a bin) adds only a linear term to the
 /// residuals, not a sagitta. Nor is a peak whose own line is heard from too
-/// few of the poses that should hear it ([`unheard_at_peak`]), nor one whose
-/// tangency points span less than [`SHORT_AT_PEAK`] of the shortest line.
-/// Screened peaks still stand for their neighbours.
+/// few of the poses that should hear it ([`unheard_at_peak`]). Screened
+/// peaks still stand for their neighbours.
 fn screen_and_refine(ctx: &Ctx, tan: &Tangents, g: &Geom, peaks: &[(f32, usize, usize)]) -> (Vec<Cand>, Vec<Cand>) {
     use rayon::prelude::*;
     let p = ctx.params;
@@ -1119,8 +1103,7 @@ fn screen_and_refine(ctx: &Ctx, tan: &Tangents, g: &Geom, peaks: &[(f32, usize, 
                 let touches = touches_in_runs(ctx, &set, theta, rho, origin);
                 let (p0, p1) = segment_of(theta, rho, origin, &touches);
                 let quick = Cand { theta, rho, touches, p0, p1, rms_sigmas: f64::INFINITY };
-                let short = quick.length() < SHORT_AT_PEAK * p.min_line_length_m;
-                Some(if short || curved(ctx, &quick, origin) || heard_ratio(ctx, &quick, origin) < unheard {
+                Some(if curved(ctx, &quick, origin) || heard_ratio(ctx, &quick, origin) < unheard {
                     Screened::NotRefined(quick)
                 } else {
                     Screened::Refined(refine(ctx, tan, theta, rho, origin, bin, rho_bin))
@@ -1145,21 +1128,15 @@ fn screen_and_refine(ctx: &Ctx, tan: &Tangents, g: &Geom, peaks: &[(f32, usize, 
 
 /// The Hough vote, candidate refinement, ghost rejection and assignment.
 pub(crate) fn find_lines(ctx: &Ctx) -> LinesResult {
+    let p = ctx.params;
     if ctx.preps.is_empty() {
         return LinesResult::default();
     }
     let g = Geom::new(ctx);
-    let tan = Tangents::new(ctx, g.origin);
+    let Geom { origin, rho_bin, bin, .. } = g;
+    let tan = Tangents::new(ctx, origin);
     let peaks = hough_peaks(ctx, &tan, &g);
     let (refined, _) = screen_and_refine(ctx, &tan, &g, &peaks);
-    accept(ctx, &g, refined)
-}
-
-/// From the refined candidates to the lines: support, length, bend and
-/// hearing tests, duplicates, ghosts, then the greedy assignment.
-fn accept(ctx: &Ctx, g: &Geom, refined: Vec<Cand>) -> LinesResult {
-    let p = ctx.params;
-    let Geom { origin, rho_bin, bin, .. } = *g;
     let mut cands: Vec<Cand> = refined
         .into_iter()
         .filter(|c| c.support() >= p.min_support as usize && c.length() >= p.min_line_length_m)
@@ -1287,38 +1264,9 @@ mod tests {
             })
     }
 
-    /// The L-shaped corridor of `chirpmap benchmark maps` (2 m wide, source
-    /// at (1, 1)), first-order echoes every 0.1 m along the listener's path
-    /// (2, 1.2) → (12.9, 1.2) → (12.9, 11). The source is out of sight from
-    /// the second leg, so only the first leg's poses hear anything.
-    fn corridor_echoes() -> (Vec<Echo>, GridSpec) {
-        let v = [(0.0, 0.0), (14.0, 0.0), (14.0, 12.0), (12.0, 12.0), (12.0, 2.0), (0.0, 2.0)];
-        let outer = Polygon::new(v.iter().map(|&(x, y)| Point::new(x, y)).collect()).expect("corridor");
-        let truth = [Obstacle { shape: Shape::Polygon(outer), roughness: 0.0, absorption: 0.0 }];
-        let legs = [(Point::new(2.0, 1.2), Point::new(12.9, 1.2)), (Point::new(12.9, 1.2), Point::new(12.9, 11.0))];
-        let mut poses = Vec::new();
-        for (a, b) in legs {
-            let n = (a.dist(b) / 0.1).round() as usize;
-            poses.extend((0..n).map(|i| a + (b - a) * (i as f64 / n as f64)));
-        }
-        let poses: Vec<Pose> =
-            poses.into_iter().enumerate().map(|(i, listener)| Pose { t_s: i as f64, listener }).collect();
-        let echoes =
-            exact_echoes(Point::new(1.0, 1.0), &poses, &ExactScene::from_obstacles(&truth), &ExactOptions::default())
-                .expect("echoes");
-        (echoes, GridSpec::from_bounds([-3.0, -3.0, 17.0, 15.0], 0.1, u128::MAX).expect("grid"))
-    }
-
     /// Runs `f` on the room's context, vote geometry, tangents and peaks.
     fn with_room<R>(f: impl FnOnce(&Ctx, &Geom, &Tangents, &[(f32, usize, usize)]) -> R) -> R {
-        with_scene(room_echoes(), f)
-    }
-
-    /// Runs `f` on the context, vote geometry, tangents and peaks of `echoes`.
-    fn with_scene<R>(
-        (echoes, spec): (Vec<Echo>, GridSpec),
-        f: impl FnOnce(&Ctx, &Geom, &Tangents, &[(f32, usize, usize)]) -> R,
-    ) -> R {
+        let (echoes, spec) = room_echoes();
         let params = EvidenceParams::default();
         let mut ctx = prepare(&echoes, spec, &params).expect("ctx");
         carve_free(&mut ctx).expect("carve");
@@ -1328,38 +1276,23 @@ mod tests {
         f(&ctx, &g, &tan, &peaks)
     }
 
-    /// A refined candidate of [`sequential`] with the heard fraction and
-    /// the length of its peak's unrefined line.
-    type AtPeak = (f64, f64, Cand);
-
-    /// Which of `screen_and_refine`'s screens [`sequential`] applies (the
-    /// bend screen always).
-    #[derive(Clone, Copy)]
-    struct Screens {
-        unheard: bool,
-        short: bool,
-    }
-    const ALL: Screens = Screens { unheard: true, short: true };
-    const NONE: Screens = Screens { unheard: false, short: false };
-
     /// The one peak at a time loop `screen_and_refine` replaced, with or
-    /// without the unheard-at-peak and short-at-peak screens: the refined
-    /// candidates with the heard fraction and length of their unrefined
-    /// line, the screened ones, and how many peaks were skipped as near a
-    /// line already found.
+    /// without the unheard-at-peak screen: the refined candidates with the
+    /// heard fraction of their unrefined line, the screened ones, and how
+    /// many peaks were skipped as near a line already found.
     fn sequential(
         ctx: &Ctx,
         g: &Geom,
         tan: &Tangents,
         peaks: &[(f32, usize, usize)],
-        screens: Screens,
-    ) -> (Vec<AtPeak>, Vec<Cand>, usize) {
+        screen: bool,
+    ) -> (Vec<(f64, Cand)>, Vec<Cand>, usize) {
         let (p, origin) = (ctx.params, g.origin);
-        let (mut refined, mut screened, mut near_n, mut buf) = (Vec::<AtPeak>::new(), Vec::new(), 0, Vec::new());
+        let (mut refined, mut screened, mut near_n, mut buf) = (Vec::<(f64, Cand)>::new(), Vec::new(), 0, Vec::new());
         for &(_, t, b) in peaks {
             let (theta, rho) = g.line_of(t, b);
             let n = Point::from_angle(theta);
-            let near = refined.iter().map(|r| &r.2).chain(&screened).any(|c: &Cand| {
+            let near = refined.iter().map(|r| &r.1).chain(&screened).any(|c: &Cand| {
                 let mid = (c.p0 + c.p1) * 0.5;
                 angle_diff(theta, c.theta) <= 2.0 * g.bin
                     && (n.dot(mid - origin) - rho).abs() <= 2.0 * g.rho_bin + p.band_sigmas * p.default_sigma_m
@@ -1373,14 +1306,12 @@ mod tests {
             let (p0, p1) = segment_of(theta, rho, origin, &touches);
             let quick = Cand { theta, rho, touches, p0, p1, rms_sigmas: f64::INFINITY };
             let heard = heard_ratio(ctx, &quick, origin);
-            let short = quick.length() < SHORT_AT_PEAK * p.min_line_length_m;
-            let unheard = heard < unheard_at_peak(p.ghost_fraction);
-            if curved(ctx, &quick, origin) || (screens.short && short) || (screens.unheard && unheard) {
+            if curved(ctx, &quick, origin) || (screen && heard < unheard_at_peak(p.ghost_fraction)) {
                 screened.push(quick);
                 continue;
             }
             if let Some(c) = refine(ctx, tan, theta, rho, origin, g.bin, g.rho_bin) {
-                refined.push((heard, quick.length(), c));
+                refined.push((heard, c));
             }
         }
         (refined, screened, near_n)
@@ -1390,20 +1321,17 @@ mod tests {
     /// a time loop, whatever the pool's size.
     #[test]
     fn batched_screening_is_the_sequential_loop() {
-        let check = |ctx: &Ctx, g: &Geom, tan: &Tangents, peaks: &[(f32, usize, usize)]| {
+        with_room(|ctx, g, tan, peaks| {
             assert!(peaks.len() > 100, "{} peaks", peaks.len());
-            let (refined, screened, _) = sequential(ctx, g, tan, peaks, ALL);
-            let refined: Vec<Cand> = refined.into_iter().map(|r| r.2).collect();
+            let (refined, screened, _) = sequential(ctx, g, tan, peaks, true);
+            let refined: Vec<Cand> = refined.into_iter().map(|r| r.1).collect();
             for threads in [1, 2, 3] {
                 let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
                 let (r, sc) = pool.install(|| screen_and_refine(ctx, tan, g, peaks));
                 assert!(same(&r, &refined) && same(&sc, &screened), "{threads} threads");
             }
             assert!(!refined.is_empty() && !screened.is_empty());
-        };
-        with_room(check);
-        // The corridor's peaks are mostly short at the peak (see below).
-        with_scene(corridor_echoes(), check);
+        });
     }
 
     /// The ghost verdicts against the loop `ghost_lines` replaced: every
@@ -1463,10 +1391,10 @@ mod tests {
     fn peak_census_of_the_room() {
         with_room(|ctx, g, tan, peaks| {
             let p = ctx.params;
-            let (refined, screened, near_n) = sequential(ctx, g, tan, peaks, NONE);
+            let (refined, screened, near_n) = sequential(ctx, g, tan, peaks, false);
             // Outcomes in the order `find_lines` tests them.
             let (mut kept, mut short, mut bent, mut unheard) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
-            for (h, _, c) in &refined {
+            for (h, c) in &refined {
                 if c.support() < p.min_support as usize || c.length() < p.min_line_length_m {
                     short.push(*h);
                 } else if curved(ctx, c, g.origin) {
@@ -1505,67 +1433,6 @@ mod tests {
             // (48 of 102 since the vote's offset bins follow σ; 59 of 97
             // with bins of a cell).
             assert!(below(&unheard, screen) > unheard.len() / 3);
-        });
-    }
-
-    /// The short-at-peak screen on the corridor, whose peaks are mostly a
-    /// fan of lines through the spot where the pass meets the end wall along
-    /// its normal (each tangent to many ellipses at one point): with and
-    /// without it, the same lines are accepted, bit for bit, and the same
-    /// echoes are ghosts; it spares 43 % of the refinements. Not
-    /// vacuous: a line kept before deduplication starts short at one of its
-    /// peaks (another peak finds the same line). Prints the census
-    /// (`-- --nocapture`).
-    #[test]
-    fn short_peaks_of_the_corridor_are_spared() {
-        with_scene(corridor_echoes(), |ctx, g, tan, peaks| {
-            let p = ctx.params;
-            let limit = SHORT_AT_PEAK * p.min_line_length_m;
-            let without = sequential(ctx, g, tan, peaks, Screens { unheard: true, short: false }).0;
-            let with = sequential(ctx, g, tan, peaks, ALL).0;
-            let keeps = |c: &Cand| {
-                c.support() >= p.min_support as usize
-                    && c.length() >= p.min_line_length_m
-                    && !curved(ctx, c, g.origin)
-                    && heard_ratio(ctx, c, g.origin) >= 1.0 - p.ghost_fraction
-            };
-            let short = without.iter().filter(|r| r.1 < limit).count();
-            let short_kept = without.iter().filter(|r| r.1 < limit && keeps(&r.2)).count();
-            let (a, b) = (
-                accept(ctx, g, without.iter().map(|r| r.2.clone()).collect()),
-                accept(ctx, g, with.iter().map(|r| r.2.clone()).collect()),
-            );
-            println!(
-                "corridor: {} peaks, {} refined without the screen ({short} short at the peak, {short_kept} of \
-                 them kept before deduplication), {} with it; {} lines accepted",
-                peaks.len(),
-                without.len(),
-                with.len(),
-                a.accepted.len()
-            );
-            assert!(a.accepted.len() >= 3, "{} lines", a.accepted.len());
-            // 82 of 201 short, 115 refined with the screen (it also spares
-            // their neighbours: screened peaks stand for them).
-            assert!(short_kept >= 1 && 3 * short > without.len(), "{short_kept} kept, {short} short");
-            assert!(5 * with.len() < 3 * without.len(), "{} of {} refined", with.len(), without.len());
-            let key = |r: &LinesResult| {
-                let lines: Vec<_> = r
-                    .accepted
-                    .iter()
-                    .map(|l| {
-                        let s = &l.surface;
-                        let ks: Vec<usize> = l.touches.iter().map(|t| t.0).collect();
-                        ([s.p0.x, s.p0.y, s.p1.x, s.p1.y, l.theta, l.rho].map(f64::to_bits), s.ambiguous, ks)
-                    })
-                    .collect();
-                // The mapper reads the ghost echoes no line explains, as a set.
-                let explained: std::collections::BTreeSet<usize> =
-                    r.accepted.iter().flat_map(|l| l.touches.iter().map(|t| t.0)).collect();
-                let ghosts: std::collections::BTreeSet<usize> =
-                    r.ghost_echoes.iter().copied().filter(|k| !explained.contains(k)).collect();
-                (lines, ghosts)
-            };
-            assert!(key(&a) == key(&b), "the screen changed the lines");
         });
     }
 
