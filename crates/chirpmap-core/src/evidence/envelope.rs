@@ -188,21 +188,10 @@ pub(crate) fn find_points(ctx: &Ctx, skip: &[bool], max_points: usize) -> Vec<Po
         // second crossings of its ellipses (on the far side of the foci) pile
         // up on a ghost curve and take the echoes its cluster radius missed.
         let model = explain_more(ctx, skip, &echo_used, at, &mut touches, &mut meas_seen);
-        let ks: Vec<usize> = touches.iter().map(|&(k, _)| k).collect();
-        // A pile of crossings is a reflector only if its echoes agree on
-        // one: a small circle fits them all, or a point fits at least half
-        // of them (the vote's trimmed fit and consensus; a large circle's
-        // arc passes that). A compact reflector of a few σ's size and the
-        // crossings of its neighbouring ellipses' far sides otherwise left
-        // a dense pile metres from it that took its echoes (132 of them, on
-        // a room walk with a 0.3 m pillar at σ = 1 cm; test
-        // `pillar_in_clutter_is_one_point`).
-        if model.is_none() && !agree_on_a_point(ctx, &ks, at) {
-            continue;
-        }
-        for &k in &ks {
+        for &(k, _) in &touches {
             echo_used[k] = true;
         }
+        let ks: Vec<usize> = touches.iter().map(|&(k, _)| k).collect();
         out.push(PointOut {
             surface: Surface {
                 kind: SurfaceKind::Point,
@@ -216,17 +205,6 @@ pub(crate) fn find_points(ctx: &Ctx, skip: &[bool], max_points: usize) -> Vec<Po
         });
     }
     out
-}
-
-/// Whether a point near `at` explains at least half of the echoes `ks`
-/// (one per measurement, the first of each) within their bands, by the
-/// vote's trimmed fit ([`super::vote::trimmed_fit`]: runs of poses and
-/// consensus).
-fn agree_on_a_point(ctx: &Ctx, ks: &[usize], at: Point) -> bool {
-    let mut one: Vec<usize> = ks.to_vec();
-    one.sort_by_key(|&k| (ctx.preps[k].meas, k));
-    one.dedup_by_key(|k| ctx.preps[*k].meas);
-    super::vote::trimmed_fit(ctx, at, one.len().div_ceil(2), one).is_some()
 }
 
 /// A compact reflector as a small circle: centre `c`, radius `rho_m`.

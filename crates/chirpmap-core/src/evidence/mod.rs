@@ -467,7 +467,7 @@ pub fn map_evidence(echoes: &[Echo], spec: GridSpec, params: &EvidenceParams) ->
         surfaces.push((p.surface, p.touches));
     }
 
-    drop_surfaces_of_points(&ctx, &mut surfaces, &models);
+    drop_lines_of_points(&ctx, &mut surfaces, &models);
 
     // Final map: carving + hits at reflection points + faint unexplained rings.
     let mut grid = Grid { spec, data: std::mem::take(&mut ctx.free) };
@@ -503,8 +503,8 @@ pub fn map_evidence(echoes: &[Echo], spec: GridSpec, params: &EvidenceParams) ->
     Ok(EvidenceMap { grid, surfaces, highlights, cells_updated })
 }
 
-/// Removes each line (or point, below) at least four fifths of whose echoes
-/// a compact reflector also explains (its fitted small circle's predicted Δd, or the
+/// Removes each line at least four fifths of whose echoes a compact
+/// reflector also explains (its fitted small circle's predicted Δd, or the
 /// focal excess at the point without one, within the echo's band), and
 /// gives the reflector those echoes. Along a straight pass a small
 /// reflector's echoes are, over a stretch of the pass, also those of a line
@@ -517,12 +517,7 @@ pub fn map_evidence(echoes: &[Echo], spec: GridSpec, params: &EvidenceParams) ->
 /// one beside the pole of test `pole_beside_a_straight_walk_is_one_point`.
 /// A loop past circles (`benchmark maps`' loop-circles) had one such line
 /// that is not ambiguous: the rule holds for any line.
-///
-/// A point goes the same way to a reflector with a fitted small circle and
-/// more support: envelope points are taken densest first, so a pile of
-/// crossings beside a pillar can take some of its echoes before the
-/// pillar's own pile is reached (test `pillar_in_clutter_is_one_point`).
-fn drop_surfaces_of_points(
+fn drop_lines_of_points(
     ctx: &Ctx,
     surfaces: &mut Vec<(Surface, Vec<(usize, Point)>)>,
     models: &[Option<envelope::SmallCircle>],
@@ -541,16 +536,10 @@ fn drop_surfaces_of_points(
     let mut dropped = vec![false; surfaces.len()];
     for l in 0..surfaces.len() {
         let (s, touches) = &surfaces[l];
-        if touches.is_empty() {
+        if s.kind != SurfaceKind::Line || touches.is_empty() {
             continue;
         }
-        let is_point = s.kind == SurfaceKind::Point;
-        let can_own = |i: usize| {
-            !dropped[i]
-                && (!is_point
-                    || (i != l && models.get(i).copied().flatten().is_some() && surfaces[i].0.support > s.support))
-        };
-        let owner = points.iter().copied().filter(|&i| can_own(i)).find_map(|i| {
+        let owner = points.iter().find_map(|&i| {
             let taken: Vec<usize> = touches.iter().map(|&(k, _)| k).filter(|&k| fits(k, i, surfaces[i].0.p0)).collect();
             (5 * taken.len() >= 4 * touches.len()).then_some((i, taken))
         });

@@ -102,7 +102,7 @@ pub(crate) fn vote_points(
         // higher-order echoes of a pillar and a wall, leaves a few echoes
         // that fit a point somewhere near by chance; six such points
         // appeared on a dense room walk with a pillar and clutter (test
-        // `pillar_in_clutter_is_one_point`). The fit
+        // `pillar_in_clutter_gets_no_stray_points_from_the_vote`). The fit
         // gives up once fewer remain (its echoes only ever shrink).
         let Some((at, ks)) = trimmed_fit(ctx, seed, through.len().div_ceil(2), through) else { continue };
         // On a found wall that is not ambiguous (within the cluster radius
@@ -432,7 +432,7 @@ fn nearest_per_meas(ctx: &Ctx, left: &[usize], used: &[bool], at: Point, slack_m
 /// the end and refusing afterwards (on Table I at 1 ms every one of 168
 /// completed fits was then refused by the consensus, and they took two
 /// thirds of this step's time).
-pub(crate) fn trimmed_fit(ctx: &Ctx, start: Point, min_keep: usize, mut ks: Vec<usize>) -> Option<(Point, Vec<usize>)> {
+fn trimmed_fit(ctx: &Ctx, start: Point, min_keep: usize, mut ks: Vec<usize>) -> Option<(Point, Vec<usize>)> {
     let p = ctx.params;
     let min = p.min_support as usize;
     if in_runs(ctx, &ks).len() < min.max(min_keep) {
