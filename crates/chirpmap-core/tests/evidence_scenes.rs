@@ -460,6 +460,38 @@ fn pillar_in_clutter_gets_no_stray_points_from_the_vote() {
     assert!(pillar <= 0.1, "pillar {pillar:.3} m off");
 }
 
+/// A loop in the 8 m × 6 m room (σ = 1 cm) and, at five poses, a second
+/// measurement whose only echo is a false one of 11 m (its first echo, the
+/// wall's, missed; clutter heard). Each such measurement carves free space
+/// inside an 11 m ellipse, across every wall. Any two carvings made a wall
+/// sample free, so the free-space ghost test removed all four walls; the
+/// carving must outweigh the wall's own support.
+#[test]
+fn room_walls_survive_measurements_of_false_echoes_only() {
+    let (w, h) = (8.0, 6.0);
+    let truth = [polygon(&[(0.0, 0.0), (w, 0.0), (w, h), (0.0, h)])];
+    let source = Point::new(2.0, 1.5);
+    let n = 200;
+    let poses: Vec<Pose> = (0..n)
+        .map(|k| {
+            let u = std::f64::consts::TAU * k as f64 / n as f64;
+            Pose { t_s: k as f64, listener: Point::new(4.0 + 2.6 * u.cos(), 3.0 + 1.8 * u.sin()) }
+        })
+        .collect();
+    let mut echoes: Vec<Echo> =
+        exact_echoes(source, &poses, &ExactScene::from_obstacles(&truth), &ExactOptions::default()).expect("echoes");
+    for p in poses.iter().step_by(n / 5) {
+        echoes.push(Echo::new(source, p.listener, 11.0, 1.0, p.t_s + 0.5, 0).expect("false echo"));
+    }
+    let echoes: Vec<Echo> = echoes.into_iter().map(|e| e.with_sigma_m(0.01).expect("sigma")).collect();
+    let spec = GridSpec::from_bounds([-3.0, -3.0, 11.0, 9.0], 0.1, u128::MAX).expect("grid");
+    let map = map_evidence(&echoes, spec, &EvidenceParams::default()).expect("evidence map");
+    print_surfaces("room with measurements of false echoes only", &map.surfaces);
+    let on_wall = |p: Point| p.x.abs().min((p.x - w).abs()).min(p.y.abs()).min((p.y - h).abs()) <= 0.02;
+    let walls = map.surfaces.iter().filter(|s| s.kind == SurfaceKind::Line && on_wall(s.p0) && on_wall(s.p1)).count();
+    assert_eq!(walls, 4, "four walls");
+}
+
 /// Evidence map of a 2 000-pose wandering walk in the 8 m × 6 m room of
 /// `truth`, with noisy echoes and two false echoes per pose.
 fn room_walk_in_clutter(truth: &[Obstacle]) -> chirpmap_core::EvidenceMap {

@@ -262,6 +262,10 @@ impl Ctx<'_> {
     pub fn free_at(&self, p: Point) -> f64 {
         self.spec.cell_of(p).map_or(0.0, |(i, j)| self.free[j * self.spec.nx + i])
     }
+    /// How many measurements carved `p` free.
+    pub fn carvings_at(&self, p: Point) -> f64 {
+        (self.free_at(p) / self.params.free_logodds).round()
+    }
     /// Whether at least two measurements carved `p` free.
     pub fn is_free(&self, p: Point) -> bool {
         self.free_at(p) <= 2.0 * self.params.free_logodds + 1e-12
