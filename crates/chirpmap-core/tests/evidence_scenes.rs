@@ -472,12 +472,7 @@ fn room_walls_survive_measurements_of_false_echoes_only() {
     let truth = [polygon(&[(0.0, 0.0), (w, 0.0), (w, h), (0.0, h)])];
     let source = Point::new(2.0, 1.5);
     let n = 200;
-    let poses: Vec<Pose> = (0..n)
-        .map(|k| {
-            let u = std::f64::consts::TAU * k as f64 / n as f64;
-            Pose { t_s: k as f64, listener: Point::new(4.0 + 2.6 * u.cos(), 3.0 + 1.8 * u.sin()) }
-        })
-        .collect();
+    let poses = loop_poses(Point::new(4.0, 3.0), 2.6, 1.8, n);
     let mut echoes: Vec<Echo> =
         exact_echoes(source, &poses, &ExactScene::from_obstacles(&truth), &ExactOptions::default()).expect("echoes");
     for p in poses.iter().step_by(n / 5) {

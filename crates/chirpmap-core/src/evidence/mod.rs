@@ -268,7 +268,7 @@ impl Ctx<'_> {
     }
     /// Whether at least two measurements carved `p` free.
     pub fn is_free(&self, p: Point) -> bool {
-        self.free_at(p) <= 2.0 * self.params.free_logodds + 1e-12
+        self.carvings_at(p) >= 2.0
     }
 
     /// Positions in `ms` (measurement indices, increasing) of the
