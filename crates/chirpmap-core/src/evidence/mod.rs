@@ -853,7 +853,7 @@ fn add_ring_span(row: &mut [f64], spec: &GridSpec, prep: &Prep, ring_logodds: f6
 /// in the low mantissa bits; `e^r` by its Taylor series to degree 12
 /// (remainder ~2.4e-16 relative at |r| = ln 2 / 2); `2^k` built in the exponent field.
 #[inline(always)]
-fn exp_nonpositive(x: f64) -> f64 {
+pub(crate) fn exp_nonpositive(x: f64) -> f64 {
     const ROUND: f64 = 6_755_399_441_055_744.0; // 1.5 · 2^52
     // fdlibm's ln2_hi (its low 21 mantissa bits zero) and ln2_lo.
     const LN2_HI: f64 = f64::from_bits(0x3fe6_2e42_fee0_0000);
