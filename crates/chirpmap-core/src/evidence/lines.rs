@@ -558,7 +558,8 @@ fn refine(ctx: &Ctx, tan: &Tangents, theta0: f64, rho0: f64, origin: Point, bin:
             sorted.at(&local, Point::from_angle(th));
             let vals = &sorted.vals;
             let (_, centre) = densest(vals, width);
-            let score = sorted.arch.dispatch(KernelSum { raw: &sorted.raw, neg_half_prec: &neg_half_prec, centre, cut });
+            let score =
+                sorted.arch.dispatch(KernelSum { raw: &sorted.raw, neg_half_prec: &neg_half_prec, centre, cut });
             (score, centre)
         };
         let stride = STEPS / COARSE;

@@ -85,58 +85,133 @@ pub(crate) fn vote_points(
     let near_reflector =
         |q: Point, reflectors: &[Point]| reflectors.iter().any(|r| r.dist(q) <= 2.0 * p.point_radius_m);
     let mut out = Vec::new();
-    for seed in vote.seeds(ctx).into_iter().take(MAX_SEEDS) {
-        if out.len() >= max_points {
-            break;
+    let seeds: Vec<Point> = vote.seeds(ctx).into_iter().take(MAX_SEEDS).collect();
+    for batch in seeds.chunks(SEED_BATCH) {
+        let mut plan =
+            plan_batch(ctx, batch, &left, &used, &reflectors, &tried, vote.slack_m, &near_reflector).into_iter();
+        // The plan holds while no reflector has been accepted in this batch.
+        let accepted_before = out.len();
+        for &seed in batch {
+            let planned = plan.next().filter(|_| out.len() == accepted_before);
+            if out.len() >= max_points {
+                break;
+            }
+            if near_reflector(seed, &reflectors) {
+                continue;
+            }
+            let (through, fitted) = match planned {
+                Some(Planned { through: Some(through), fitted }) => (through, fitted),
+                _ => (nearest_per_meas(ctx, &left, &used, seed, vote.slack_m), None),
+            };
+            if through.len() < p.min_support as usize || !tried.insert(hash_of(&through)) {
+                continue;
+            }
+            // Consensus, as in RANSAC (Fischler and Bolles 1981): at least half
+            // the echoes through the seed must fit the point. A reflector that
+            // is no point at the echoes' σ (a 0.3 m pillar at σ = 1 cm), or the
+            // higher-order echoes of a pillar and a wall, leaves a few echoes
+            // that fit a point somewhere near by chance; six such points
+            // appeared on a dense room walk with a pillar and clutter (test
+            // `pillar_in_clutter_gets_no_stray_points_from_the_vote`). The fit
+            // gives up once fewer remain (its echoes only ever shrink).
+            let fitted = fitted.unwrap_or_else(|| trimmed_fit(ctx, seed, through.len().div_ceil(2), through));
+            let Some((at, ks)) = fitted else { continue };
+            // On a found wall that is not ambiguous (within the cluster radius
+            // of it, continued to its corners with the other such walls), the
+            // echoes are the wall's own that its runs missed: no new reflector.
+            // (An ambiguous line of a straight pass may be a large circle's
+            // stand-in; a point beside it can place the circle better.)
+            let on_wall = reach.iter().any(|&(q0, q1)| point_segment_distance(at, q0, q1) <= p.point_radius_m);
+            if ctx.spec.cell_of(at).is_none()
+                || ctx.is_free(at)
+                || on_wall
+                || near_reflector(at, &reflectors)
+                || hidden(ctx, &ks, at, &extents)
+            {
+                continue;
+            }
+            let ks = extend_runs(ctx, ks, nearest_per_meas(ctx, &left, &used, at, 0.0));
+            for &k in &ks {
+                used[k] = true;
+            }
+            reflectors.push(at);
+            out.push(PointOut {
+                surface: Surface {
+                    kind: SurfaceKind::Point,
+                    p0: at,
+                    p1: at,
+                    support: ks.len(),
+                    ambiguous: super::envelope::point_ambiguous(ctx, &ks, at),
+                },
+                touches: ks.iter().map(|&k| (k, at)).collect(),
+                model: Some(super::envelope::SmallCircle { c: at, rho_m: 0.0 }),
+            });
         }
-        if near_reflector(seed, &reflectors) {
-            continue;
-        }
-        let through = nearest_per_meas(ctx, &left, &used, seed, vote.slack_m);
-        if through.len() < p.min_support as usize || !tried.insert(hash_of(&through)) {
-            continue;
-        }
-        // Consensus, as in RANSAC (Fischler and Bolles 1981): at least half
-        // the echoes through the seed must fit the point. A reflector that
-        // is no point at the echoes' σ (a 0.3 m pillar at σ = 1 cm), or the
-        // higher-order echoes of a pillar and a wall, leaves a few echoes
-        // that fit a point somewhere near by chance; six such points
-        // appeared on a dense room walk with a pillar and clutter (test
-        // `pillar_in_clutter_gets_no_stray_points_from_the_vote`). The fit
-        // gives up once fewer remain (its echoes only ever shrink).
-        let Some((at, ks)) = trimmed_fit(ctx, seed, through.len().div_ceil(2), through) else { continue };
-        // On a found wall that is not ambiguous (within the cluster radius
-        // of it, continued to its corners with the other such walls), the
-        // echoes are the wall's own that its runs missed: no new reflector.
-        // (An ambiguous line of a straight pass may be a large circle's
-        // stand-in; a point beside it can place the circle better.)
-        let on_wall = reach.iter().any(|&(q0, q1)| point_segment_distance(at, q0, q1) <= p.point_radius_m);
-        if ctx.spec.cell_of(at).is_none()
-            || ctx.is_free(at)
-            || on_wall
-            || near_reflector(at, &reflectors)
-            || hidden(ctx, &ks, at, &extents)
-        {
-            continue;
-        }
-        let ks = extend_runs(ctx, ks, nearest_per_meas(ctx, &left, &used, at, 0.0));
-        for &k in &ks {
-            used[k] = true;
-        }
-        reflectors.push(at);
-        out.push(PointOut {
-            surface: Surface {
-                kind: SurfaceKind::Point,
-                p0: at,
-                p1: at,
-                support: ks.len(),
-                ambiguous: super::envelope::point_ambiguous(ctx, &ks, at),
-            },
-            touches: ks.iter().map(|&k| (k, at)).collect(),
-            model: Some(super::envelope::SmallCircle { c: at, rho_m: 0.0 }),
-        });
     }
     out
+}
+
+/// Seeds worked out together by [`plan_batch`].
+const SEED_BATCH: usize = 16;
+
+/// A point reflector and the echoes it explains, as [`trimmed_fit`] gives it.
+type Fitted = Option<(Point, Vec<usize>)>;
+
+/// A seed's echoes and fit, worked out ahead of the sequential pass.
+struct Planned {
+    /// The echoes through the seed (`None`: next to a reflector).
+    through: Option<Vec<usize>>,
+    /// The trimmed fit, where the pass will need it (`None`: not fitted).
+    fitted: Option<Fitted>,
+}
+
+/// The echoes through each seed of `batch` and, for each seed the
+/// sequential pass of [`vote_points`] will fit, its [`trimmed_fit`], on
+/// rayon's threads (the fits are nine tenths of this step on Table I at
+/// 1 ms, and all but a few are refused). Both are pure functions of the seed
+/// and of the state before the batch (`used`, `reflectors`, `tried`), so they
+/// are what the pass would compute for as long as it accepts no reflector;
+/// after it accepts one it works the batch's other seeds out itself. The
+/// same reflectors whatever the thread count.
+#[allow(clippy::too_many_arguments)]
+fn plan_batch(
+    ctx: &Ctx,
+    batch: &[Point],
+    left: &[usize],
+    used: &[bool],
+    reflectors: &[Point],
+    tried: &std::collections::HashSet<u64>,
+    slack_m: f64,
+    near_reflector: &(impl Fn(Point, &[Point]) -> bool + Sync),
+) -> Vec<Planned> {
+    use rayon::prelude::*;
+    let min = ctx.params.min_support as usize;
+    let throughs: Vec<Option<Vec<usize>>> = batch
+        .par_iter()
+        .map(|&seed| (!near_reflector(seed, reflectors)).then(|| nearest_per_meas(ctx, left, used, seed, slack_m)))
+        .collect();
+    // Which seeds the pass fits: as it decides, with the hashes of this
+    // batch's earlier sets added to those tried before.
+    let mut seen: std::collections::HashSet<u64> = std::collections::HashSet::new();
+    let fit_it: Vec<bool> = throughs
+        .iter()
+        .map(|t| {
+            t.as_ref().is_some_and(|t| {
+                let h = hash_of(t);
+                t.len() >= min && !tried.contains(&h) && seen.insert(h)
+            })
+        })
+        .collect();
+    let fits: Vec<Option<Fitted>> = batch
+        .par_iter()
+        .zip(&throughs)
+        .zip(&fit_it)
+        .map(|((&seed, through), &fit_it)| {
+            let through = through.as_ref().filter(|_| fit_it)?;
+            Some(trimmed_fit(ctx, seed, through.len().div_ceil(2), through.clone()))
+        })
+        .collect();
+    throughs.into_iter().zip(fits).map(|(through, fitted)| Planned { through, fitted }).collect()
 }
 
 /// A hash of an echo set (the `tried` sets hold hashes, not the sets).
@@ -346,11 +421,12 @@ impl Vote {
             let mark = prep.meas as u32 + 1;
             let spans =
                 for_each_band_span(e.focus_a, e.focus_b, e.delta_d_m - half, e.delta_d_m + half, &spec, |j, lo, hi| {
-                    for c in j * nx + lo..=j * nx + hi {
-                        if stamp[c] != mark {
-                            stamp[c] = mark;
-                            counts[c] += 1;
-                        }
+                    // Branch-free (the stamp test mispredicts along a
+                    // band's edge): the same counts.
+                    let row = j * nx + lo..=j * nx + hi;
+                    for (s, c) in stamp[row.clone()].iter_mut().zip(&mut counts[row]) {
+                        *c += u32::from(*s != mark);
+                        *s = mark;
                     }
                 });
             spans.ok()?;
@@ -432,7 +508,7 @@ fn nearest_per_meas(ctx: &Ctx, left: &[usize], used: &[bool], at: Point, slack_m
 /// the end and refusing afterwards (on Table I at 1 ms every one of 168
 /// completed fits was then refused by the consensus, and they took two
 /// thirds of this step's time).
-fn trimmed_fit(ctx: &Ctx, start: Point, min_keep: usize, mut ks: Vec<usize>) -> Option<(Point, Vec<usize>)> {
+fn trimmed_fit(ctx: &Ctx, start: Point, min_keep: usize, mut ks: Vec<usize>) -> Fitted {
     let p = ctx.params;
     let min = p.min_support as usize;
     if in_runs(ctx, &ks).len() < min.max(min_keep) {
