@@ -147,7 +147,7 @@ pub fn run(args: &MapArgs) -> Result<()> {
     if args.wav.is_some() {
         out.write("echoes.csv", echoes_with_rates(&echoes, &rates)?)?;
     }
-    let eval = args.scene.as_ref().map(|_| chirpmap::evaluate(&obstacles, &map));
+    let eval = args.scene.as_ref().map(|_| chirpmap::evaluate(&obstacles, &map, &echoes));
     let mut title = format!("{} echoes, {} highlights", echoes.len(), map.highlights.len());
     if !map.surfaces.is_empty() {
         title += &format!(", {} surfaces", map.surfaces.len());

@@ -56,37 +56,43 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
     let (resolved, out, map) = (&run.resolved, &run.output, &run.map);
     let (so, sh) = (run.scores.score_obstacle, run.scores.score_highlight);
 
-    let mut echoes_csv = Vec::new();
-    write_echoes(&mut echoes_csv, &out.echoes)?;
-    staged.write("echoes.csv", echoes_csv)?;
-    staged.write("scene.toml", resolved_scene_toml(resolved))?;
-    let path = trajectory_points(resolved);
-    let radius = resolved.listeners.first().map(|l| l.radius_m);
-    write_map(
-        &mut staged,
-        map,
-        &MapPlot {
-            title: format!(
-                "seed {}: {} echoes, {} highlights, score_obstacle {}, score_highlight {}",
-                resolved.scene.seed,
-                out.echoes.len(),
-                map.highlights.len(),
-                fmt_score(so, 3),
-                fmt_score(sh, 3)
-            ),
-            grid: &map.grid,
-            highlights: &map.highlights,
-            sources: &[resolved.source],
-            listener_positions: &path,
-            listener_radius_m: radius,
-            obstacles: &resolved.obstacles,
-        },
-        fmt,
-    )?;
-    if args.spectra {
-        write_spectra(&mut staged, resolved, out, fmt)?;
-    }
-    let eval = chirpmap::evaluate(&resolved.obstacles, map);
+    // The evaluation (the obstacles' exact reflection points for the
+    // surface metrics, a few ms) runs beside the files: the data files leave
+    // a core idle while the figure is drawn.
+    let eval = std::thread::scope(|scope| -> Result<_> {
+        let eval = scope.spawn(|| chirpmap::evaluate(&resolved.obstacles, map, &out.echoes));
+        let mut echoes_csv = Vec::new();
+        write_echoes(&mut echoes_csv, &out.echoes)?;
+        staged.write("echoes.csv", echoes_csv)?;
+        staged.write("scene.toml", resolved_scene_toml(resolved))?;
+        let path = trajectory_points(resolved);
+        let radius = resolved.listeners.first().map(|l| l.radius_m);
+        write_map(
+            &mut staged,
+            map,
+            &MapPlot {
+                title: format!(
+                    "seed {}: {} echoes, {} highlights, score_obstacle {}, score_highlight {}",
+                    resolved.scene.seed,
+                    out.echoes.len(),
+                    map.highlights.len(),
+                    fmt_score(so, 3),
+                    fmt_score(sh, 3)
+                ),
+                grid: &map.grid,
+                highlights: &map.highlights,
+                sources: &[resolved.source],
+                listener_positions: &path,
+                listener_radius_m: radius,
+                obstacles: &resolved.obstacles,
+            },
+            fmt,
+        )?;
+        if args.spectra {
+            write_spectra(&mut staged, resolved, out, fmt)?;
+        }
+        eval.join().map_err(|_| anyhow!("evaluating the map failed"))
+    })?;
     let mut summary = map_summary(map, Some(&eval));
     let sim = json!({
         "n_echoes": out.echoes.len(),

@@ -419,7 +419,9 @@ pub fn specular_point_on_circle(source: Point, listener: Point, circle: &Circle)
     // the path length (zero where incidence equals reflection).
     const N: usize = 720;
     let step = std::f64::consts::TAU / N as f64;
-    let k_best = (0..N).min_by(|&a, &b| path(a as f64 * step).total_cmp(&path(b as f64 * step)))?;
+    // Each path length once (a comparison of two recomputed ones doubled
+    // the cost); the first of equal minima, as `min_by` picks.
+    let k_best = (0..N).map(|k| path(k as f64 * step)).enumerate().min_by(|a, b| a.1.total_cmp(&b.1))?.0;
     let slope = |phi: f64| {
         let u = Point::from_angle(phi);
         let p = c + u * r;

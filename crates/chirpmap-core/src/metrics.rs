@@ -17,7 +17,12 @@
 //! - Chamfer: ½ (mean over reported samples of the distance to the truth +
 //!   mean over observable true samples of the distance to the nearest
 //!   reported sample); `None` when either side is empty.
-//! - Walls: every polygon edge at least `min_wall_m` long. Its best line is
+//! - Walls: every polygon edge at least `min_wall_m` long and, with
+//!   `observed` points given, heard: an observed point lies within `tol_m`
+//!   of the edge, more than `tol_m` from both its ends (a wall's back face
+//!   or the unlit side of a corridor is no wall any mapper could match,
+//!   while a line matched to the face in front of it would be counted
+//!   against it at the wall's thickness). Its best line is
 //!   the reported line within `max_angle_deg` whose midpoint projects onto the
 //!   edge (± `tol_m`) with the smallest offset; offset = distance of that
 //!   midpoint from the edge's infinite line, angle = angle between the
@@ -158,6 +163,13 @@ pub fn surface_metrics(
             }
             let dir = (b - a) * (1.0 / len);
             let normal = Point::new(-dir.y, dir.x);
+            let heard = |o: &Point| {
+                let along = (*o - a).dot(dir);
+                (*o - a).dot(normal).abs() <= params.tol_m && along > params.tol_m && along < len - params.tol_m
+            };
+            if observed.is_some_and(|obs| !obs.iter().any(heard)) {
+                continue;
+            }
             let best = lines
                 .iter()
                 .filter_map(|s| {
@@ -235,6 +247,11 @@ mod tests {
         let m = surface_metrics(&s, &[square()], Some(&obs), &MetricParams::default());
         // Observable: the 81 bottom samples and 11 per side edge (y ≤ 0.5); 87 recalled.
         assert!((m.recall - 87.0 / 103.0).abs() < 1e-9, "{}", m.recall);
+        // Only the bottom wall was heard (its corners' bounces, (0, 0) and
+        // (4, 0), do not make the side walls heard), so only it is scored.
+        assert_eq!(m.walls.len(), 1);
+        assert_eq!((m.walls[0].a, m.walls[0].b), (Point::new(0.0, 0.0), Point::new(4.0, 0.0)));
+        assert!((m.walls[0].offset_m.expect("matched") - 0.04).abs() < 1e-9);
         let c = Obstacle {
             shape: Shape::Circle(Circle::new(Point::new(10.0, 10.0), 1.0).expect("ok")),
             roughness: 0.0,

@@ -240,7 +240,7 @@ pub fn run_case(case: DopplerCase) -> Result<DopplerRow, String> {
         let mut opts = MapOptions { bounds: Some(bounds), ..MapOptions::default() };
         opts.params.mapper = MapperKind::Evidence;
         if let Ok(map) = map_echoes(&echoes, &[], &opts) {
-            let e = evaluate(&truth_obstacles, &map);
+            let e = evaluate(&truth_obstacles, &map, &echoes);
             // The wall face: the matched edge nearest the speaker.
             surface_offset_m = e
                 .surfaces

@@ -275,7 +275,7 @@ pub fn run_case(case: &Case, mapper: MapperKind) -> Result<Row, String> {
     let started = Instant::now();
     let map = map_echoes(&case.echoes, &[], &opts).map_err(|e| format!("{}: {e}", case.name))?;
     let elapsed_s = started.elapsed().as_secs_f64();
-    let e = evaluate(&case.truth, &map);
+    let e = evaluate(&case.truth, &map, &case.echoes);
     let matched: Vec<_> = e.surfaces.walls.iter().filter(|w| w.offset_m.is_some()).collect();
     let median = |mut v: Vec<f64>| {
         v.sort_by(f64::total_cmp);

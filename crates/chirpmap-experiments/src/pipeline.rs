@@ -15,7 +15,7 @@ pub fn run_metrics(scene: &Scene, run: u64) -> Result<RunMetrics, String> {
     scene.run_index = run;
     let sim = chirpmap::simulate(&scene).map_err(|e| e.to_string())?;
     let obstacles = sim.resolved.scene.explicit_obstacles().map_err(|e| e.to_string())?;
-    let surfaces = chirpmap::evaluate(&obstacles, &sim.map).surfaces;
+    let surfaces = chirpmap::evaluate(&obstacles, &sim.map, &sim.output.echoes).surfaces;
     Ok(RunMetrics {
         score_obstacle: sim.scores.score_obstacle,
         score_highlight: sim.scores.score_highlight,

@@ -16,7 +16,7 @@ fn main() -> Result<(), chirpmap::Error> {
         let mut opts = MapOptions { bounds: Some(run.resolved.world), ..MapOptions::default() };
         opts.params.mapper = mapper;
         let map = map_echoes(&run.output.echoes, &[], &opts)?;
-        let e = evaluate(&run.resolved.obstacles, &map);
+        let e = evaluate(&run.resolved.obstacles, &map, &run.output.echoes);
         println!(
             "{mapper:?}: {} highlights, {} surfaces, score_obstacle {:?}, score_highlight {:?}, surface F1 {:.3}",
             map.highlights.len(),

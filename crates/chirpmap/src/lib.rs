@@ -62,7 +62,8 @@ pub use chirpmap_core::{
 };
 pub use error::{Error, Result};
 pub use mapping::{
-    Evaluation, MapOptions, MapResult, Scores, covering_bounds, evaluate, foci, map_echoes, map_on_grid, score,
+    Evaluation, MapOptions, MapResult, Scores, covering_bounds, evaluate, foci, map_echoes, map_on_grid,
+    observed_points, score,
 };
 pub use recording::{
     ChirpSpec, ChirpSummary, FrameParams, MethodSummary, PoseTrack, Prepared, RangeGeometry, RangeReport, RangeSummary,

@@ -53,13 +53,31 @@ fn both_mappers_find_a_wall_from_exact_echoes() -> Result<(), chirpmap::Error> {
         let mut opts = MapOptions { bounds: Some([-12.0, -8.0, 12.0, 6.0]), ..MapOptions::default() };
         opts.params.mapper = mapper;
         let map = map_echoes(&echoes, &[], &opts)?;
-        let e = evaluate(&truth, &map);
+        let e = evaluate(&truth, &map, &echoes);
         assert!(e.scores.score_obstacle.is_some_and(|s| s > 0.9), "{mapper:?}: {e:?}");
         if mapper == MapperKind::Evidence {
             // The front face is a line within 2 cm and 1°.
             let front = e.surfaces.walls.iter().find(|w| (w.a.y + 4.0).abs() < 1e-9 && (w.b.y + 4.0).abs() < 1e-9);
             let front = front.expect("front face listed");
             assert!(front.offset_m.is_some_and(|o| o < 0.02) && front.angle_deg.is_some_and(|a| a < 1.0), "{front:?}");
+            // Only the front face was heard, so it is the one wall scored;
+            // without the echoes the back face (y = -4.3) is listed too, and
+            // the same line is "matched" to it at the wall's thickness.
+            assert_eq!(e.surfaces.walls.len(), 1, "{:?}", e.surfaces.walls);
+            let blind = evaluate(&truth, &map, &[]);
+            let back = blind.surfaces.walls.iter().find(|w| (w.a.y + 4.3).abs() < 1e-9 && (w.b.y + 4.3).abs() < 1e-9);
+            assert!(
+                back.and_then(|w| w.offset_m).is_some_and(|o| (o - 0.3).abs() < 0.02),
+                "{:?}",
+                blind.surfaces.walls
+            );
+            // Recall counts the heard stretch of the front face only.
+            assert!(
+                e.surfaces.recall > 2.0 * blind.surfaces.recall,
+                "{} vs {}",
+                e.surfaces.recall,
+                blind.surfaces.recall
+            );
         }
     }
     Ok(())
