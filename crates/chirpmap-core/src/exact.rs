@@ -251,7 +251,8 @@ pub fn exact_reflections(
         found.sort_by(|a, b| a.delta_d_m.total_cmp(&b.delta_d_m));
         let mut merged: Vec<ExactReflection> = Vec::new();
         for r in found {
-            if merged.last().is_some_and(|m| r.delta_d_m - m.delta_d_m <= opts.merge_tol_m) {
+            // Strictly less, as documented: a tolerance of 0 merges nothing.
+            if merged.last().is_some_and(|m| r.delta_d_m - m.delta_d_m < opts.merge_tol_m) {
                 continue;
             }
             merged.push(r);

@@ -18,11 +18,12 @@
 //!   mean over observable true samples of the distance to the nearest
 //!   reported sample); `None` when either side is empty.
 //! - Walls: every polygon edge at least `min_wall_m` long and, with
-//!   `observed` points given, heard: an observed point lies within `tol_m`
-//!   of the edge, more than `tol_m` from both its ends (a wall's back face
-//!   or the unlit side of a corridor is no wall any mapper could match,
-//!   while a line matched to the face in front of it would be counted
-//!   against it at the wall's thickness). Its best line is
+//!   `observed` points given, heard: an observed point lies on the edge
+//!   (within [`ON_WALL_M`]) strictly between its ends, as a true bounce
+//!   point does (a wall's back face or the unlit side of a corridor is no
+//!   wall any mapper could match, while a line matched to the face in front
+//!   of it would be counted against it at the wall's thickness; a bounce at
+//!   a corner hears neither wall). Its best line is
 //!   the reported line within `max_angle_deg` whose midpoint projects onto the
 //!   edge (± `tol_m`) with the smallest offset; offset = distance of that
 //!   midpoint from the edge's infinite line, angle = angle between the
@@ -30,6 +31,11 @@
 
 use crate::evidence::{Surface, SurfaceKind};
 use crate::geometry::{Obstacle, Point, Shape, point_segment_distance};
+
+/// How far (m) an observed point may lie from a polygon edge and still be
+/// a bounce on it: rounding of computed bounce points, far below any
+/// tolerance of the metrics.
+pub const ON_WALL_M: f64 = 1e-6;
 
 /// Parameters of [`surface_metrics`].
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -165,7 +171,7 @@ pub fn surface_metrics(
             let normal = Point::new(-dir.y, dir.x);
             let heard = |o: &Point| {
                 let along = (*o - a).dot(dir);
-                (*o - a).dot(normal).abs() <= params.tol_m && along > params.tol_m && along < len - params.tol_m
+                (*o - a).dot(normal).abs() <= ON_WALL_M && along > ON_WALL_M && along < len - ON_WALL_M
             };
             if observed.is_some_and(|obs| !obs.iter().any(heard)) {
                 continue;

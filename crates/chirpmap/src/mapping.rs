@@ -117,50 +117,74 @@ pub fn evaluate(obstacles: &[Obstacle], map: &MapResult, echoes: &[Echo]) -> Eva
     }
 }
 
-/// Where the true `obstacles` reflect the measurements of `echoes` (each
-/// distinct source and listener position): their first-order specular
-/// points, the exact model's visible ones ([`chirpmap_core::exact`], which
-/// leaves out measurements whose direct sound an obstacle blocks), from
-/// listener positions thinned to one per half observation radius, and the
-/// points thinned to one per quarter tolerance (a long walk has a point per
-/// pose and wall); each kept one is the first of its square in a fixed
-/// order. `None` with no echoes, or when the exact model refuses the
-/// geometry.
+/// Where the true `obstacles` reflect the measurements of `echoes`: their
+/// first-order specular points, the exact model's visible ones
+/// ([`chirpmap_core::exact`], which leaves out measurements whose direct
+/// sound an obstacle blocks), every reflector's even when two give the same
+/// path. The measurements are thinned to one per pair of half-observation-
+/// radius squares (source's, listener's) and to at most
+/// [`MAX_OBSERVED_MEASUREMENTS`], evenly spaced in a fixed order; the points
+/// to one per quarter-tolerance square (a long walk has a point per pose and
+/// wall). A reflection point moves by about as much as the listener or the
+/// source does (half as much off a wall), well inside the observation
+/// radius, while the exact model's circle search costs ~0.1 ms a pose (the
+/// 706 poses of a Table I 1 ms run took 80 ms). `None` with no echoes, when
+/// the exact model refuses the geometry or finds no reflection at all: then
+/// every true surface counts.
 pub fn observed_points(obstacles: &[Obstacle], echoes: &[Echo]) -> Option<Vec<Point>> {
     use chirpmap_core::exact::{ExactOptions, ExactScene, Pose, exact_reflections};
-    let thin_m = 0.25 * MetricParams::default().tol_m;
-    if echoes.is_empty() {
+    let metric = MetricParams::default();
+    let pose_m = 0.5 * metric.observe_radius_m;
+    let thin_m = 0.25 * metric.tol_m;
+    let square = |p: Point, side_m: f64| ((p.x / side_m).floor() as i64, (p.y / side_m).floor() as i64);
+    let by_square = |a: &((i64, i64), Point), b: &((i64, i64), Point)| {
+        a.0.cmp(&b.0).then(a.1.x.total_cmp(&b.1.x)).then(a.1.y.total_cmp(&b.1.y))
+    };
+    // Measurements: one (source, listener) pair per pair of squares, the
+    // first in (squares, coordinates) order.
+    type Pair = ((i64, i64, i64, i64), (Point, Point));
+    let mut meas: Vec<Pair> = echoes
+        .iter()
+        .map(|e| {
+            let (s, l) = (square(e.source, pose_m), square(e.listener, pose_m));
+            ((s.0, s.1, l.0, l.1), (e.source, e.listener))
+        })
+        .collect();
+    meas.sort_by(|a, b| {
+        let xy = |p: Point, q: Point| p.x.total_cmp(&q.x).then(p.y.total_cmp(&q.y));
+        a.0.cmp(&b.0).then(xy(a.1.0, b.1.0)).then(xy(a.1.1, b.1.1))
+    });
+    meas.dedup_by_key(|m| m.0);
+    let step = meas.len().div_ceil(MAX_OBSERVED_MEASUREMENTS).max(1);
+    let mut kept: Vec<(Point, Point)> = meas.into_iter().step_by(step).map(|m| m.1).collect();
+    if kept.is_empty() {
         return None;
     }
-    // Measurements by source, each listener position once, in a fixed order.
-    let bits = |p: Point| (p.x.to_bits(), p.y.to_bits());
-    let key = |(s, l): &(Point, Point)| (bits(*s), bits(*l));
-    let mut meas: Vec<(Point, Point)> = echoes.iter().map(|e| (e.source, e.listener)).collect();
-    meas.sort_unstable_by_key(key);
-    meas.dedup_by_key(|m| key(m));
+    // One call of the exact model per source.
+    kept.sort_by(|a, b| a.0.x.total_cmp(&b.0.x).then(a.0.y.total_cmp(&b.0.y)));
     let scene = ExactScene::from_obstacles(obstacles);
-    let mut cells: Vec<((i64, i64), Point)> = Vec::new();
-    // Listener positions thinned to one per `pose_m` square: a reflection
-    // point moves by at most about as much as the listener (half as much off
-    // a wall), well inside the observation radius, and the exact model's
-    // circle search costs ~0.1 ms a pose (706 poses of a Table I 1 ms run
-    // took 80 ms).
-    let pose_m = 0.5 * MetricParams::default().observe_radius_m;
-    let cell = |p: Point| ((p.x / pose_m).floor() as i64, (p.y / pose_m).floor() as i64);
-    for group in meas.chunk_by(|a, b| bits(a.0) == bits(b.0)) {
-        let mut at: Vec<((i64, i64), Point)> = group.iter().map(|&(_, l)| (cell(l), l)).collect();
-        at.sort_by(|a, b| a.0.cmp(&b.0).then(a.1.x.total_cmp(&b.1.x)).then(a.1.y.total_cmp(&b.1.y)));
-        at.dedup_by_key(|a| a.0);
-        let poses: Vec<Pose> = at.iter().map(|&(_, listener)| Pose { t_s: 0.0, listener }).collect();
-        let refl = exact_reflections(group[0].0, &poses, &scene, &ExactOptions::default()).ok()?;
+    // No merging of equal paths (the default merges arrivals within 1 µm,
+    // as one echo): a corridor walked along its centre line hears both
+    // walls at once, and both were heard.
+    let opts = ExactOptions { merge_tol_m: 0.0, ..ExactOptions::default() };
+    let mut points: Vec<((i64, i64), Point)> = Vec::new();
+    for group in kept.chunk_by(|a, b| a.0.x.to_bits() == b.0.x.to_bits() && a.0.y.to_bits() == b.0.y.to_bits()) {
+        let poses: Vec<Pose> = group.iter().map(|&(_, listener)| Pose { t_s: 0.0, listener }).collect();
+        let refl = exact_reflections(group[0].0, &poses, &scene, &opts).ok()?;
         for p in refl.iter().filter(|r| r.order == 1).flat_map(|r| r.bounces.iter().copied()) {
-            cells.push((((p.x / thin_m).floor() as i64, (p.y / thin_m).floor() as i64), p));
+            points.push((square(p, thin_m), p));
         }
     }
-    cells.sort_by(|a, b| a.0.cmp(&b.0).then(a.1.x.total_cmp(&b.1.x)).then(a.1.y.total_cmp(&b.1.y)));
-    cells.dedup_by_key(|c| c.0);
-    Some(cells.into_iter().map(|(_, p)| p).collect())
+    points.sort_by(by_square);
+    points.dedup_by_key(|c| c.0);
+    (!points.is_empty()).then(|| points.into_iter().map(|(_, p)| p).collect())
 }
+
+/// Measurements [`observed_points`] asks the exact model about at most
+/// (each costs up to ~0.1 ms per circle): a moving source gets no thinning
+/// from the listener's squares alone (60 000 echoes of distinct sources took
+/// 7 s before the cap).
+pub const MAX_OBSERVED_MEASUREMENTS: usize = 4096;
 
 /// Bounds covering every ellipse and every `extra` box `(lo, hi)`, snapped
 /// outward to whole cells plus one; `None` when nothing finite is covered.

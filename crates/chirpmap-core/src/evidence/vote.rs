@@ -167,7 +167,7 @@ struct Planned {
 
 /// The echoes through each seed of `batch` and, for each seed the
 /// sequential pass of [`vote_points`] will fit, its [`trimmed_fit`], on
-/// rayon's threads (the fits are nine tenths of this step on Table I at
+/// rayon's threads (the fits were 10–13 ms of this step on Table I at
 /// 1 ms, and all but a few are refused). Both are pure functions of the seed
 /// and of the state before the batch (`used`, `reflectors`, `tried`), so they
 /// are what the pass would compute for as long as it accepts no reflector;
