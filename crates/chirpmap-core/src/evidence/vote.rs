@@ -20,9 +20,10 @@
 //! behind or on a found wall, or next to a reflector already found.
 //! docs/evidence-mapper.md §3 gives the measurements behind each rule.
 
+use super::band::Band;
 use super::envelope::PointOut;
 use super::lines::crosses;
-use super::{Ctx, Surface, SurfaceKind, for_each_band_span};
+use super::{Ctx, Surface, SurfaceKind};
 use crate::geometry::{Point, point_segment_distance};
 use crate::grid::GridSpec;
 
@@ -414,23 +415,42 @@ impl Vote {
         // The last measurement (+1) that voted for each cell: one vote per
         // measurement, however many of its echoes cover the cell.
         let mut stamp = vec![0u32; nx * ny];
-        for &k in left {
-            let prep = &ctx.preps[k];
-            let e = &prep.ellipse;
-            let half = p.band_sigmas * prep.sigma_m + slack_m;
-            let mark = prep.meas as u32 + 1;
-            let spans =
-                for_each_band_span(e.focus_a, e.focus_b, e.delta_d_m - half, e.delta_d_m + half, &spec, |j, lo, hi| {
+        let bands: Vec<Option<(u32, Band)>> = left
+            .iter()
+            .map(|&k| {
+                let prep = &ctx.preps[k];
+                let e = &prep.ellipse;
+                let half = p.band_sigmas * prep.sigma_m + slack_m;
+                let mark = prep.meas as u32 + 1;
+                Ok(Band::new(e.focus_a, e.focus_b, e.delta_d_m - half, e.delta_d_m + half, &spec)?.map(|b| (mark, b)))
+            })
+            .collect::<Result<_, crate::error::CoreError>>()
+            .ok()?;
+        // Bands of grid rows on rayon's threads, each walking every echo in
+        // order over its rows: a cell's count and stamp see the echoes in
+        // the same order whatever the split, so the same counts (the serial
+        // count was 4.1 ms of a Table I 1 ms map, 2.4 ms so).
+        use rayon::prelude::*;
+        const BAND_ROWS: usize = 32;
+        let tasks = counts.par_chunks_mut(BAND_ROWS * nx).zip(stamp.par_chunks_mut(BAND_ROWS * nx)).enumerate();
+        tasks.for_each(|(t, (counts, stamp))| {
+            let rows = t * BAND_ROWS..t * BAND_ROWS + counts.len() / nx;
+            for (mark, band) in bands.iter().flatten() {
+                let (lo, hi) = band.rows();
+                if hi < rows.start || lo >= rows.end {
+                    continue;
+                }
+                band.spans_in_rows(&spec, rows.clone(), |j, lo, hi| {
                     // Branch-free (the stamp test mispredicts along a
                     // band's edge): the same counts.
-                    let row = j * nx + lo..=j * nx + hi;
+                    let row = (j - rows.start) * nx + lo..=(j - rows.start) * nx + hi;
                     for (s, c) in stamp[row.clone()].iter_mut().zip(&mut counts[row]) {
-                        *c += u32::from(*s != mark);
-                        *s = mark;
+                        *c += u32::from(*s != *mark);
+                        *s = *mark;
                     }
                 });
-            spans.ok()?;
-        }
+            }
+        });
         Some(Vote { spec, counts, slack_m })
     }
 
