@@ -622,12 +622,19 @@ fn prepare<'a>(echoes: &[Echo], spec: GridSpec, params: &'a EvidenceParams) -> R
 /// only when all of it is inside. Row spans go into a difference array (the
 /// free grid itself, summed along each row in place), so the cost is one
 /// entry per row, not per cell. Returns cells carved.
+///
+/// Bands of grid rows go to rayon's threads, each carving every
+/// measurement's rows in measurement order and then summing its rows: a
+/// cell receives the same additions in the same order whatever the split,
+/// so the same bits (2.9 ms of a Table I 1 ms map on one thread).
 fn carve_free(ctx: &mut Ctx) -> Result<u64, CoreError> {
+    use rayon::prelude::*;
+    /// Grid rows per task.
+    const BAND_ROWS: usize = 32;
     let spec = ctx.spec;
     let nx = spec.nx;
-    let diff = &mut ctx.free;
-    let mut carved = 0u64;
     let l_free = ctx.params.free_logodds;
+    let mut bands: Vec<Band> = Vec::with_capacity(ctx.meas.len());
     for m in &ctx.meas {
         let Some(&first) = m
             .echoes
@@ -642,22 +649,45 @@ fn carve_free(ctx: &mut Ctx) -> Result<u64, CoreError> {
         if dd_free <= 0.0 {
             continue;
         }
-        for_each_band_span(p.ellipse.focus_a, p.ellipse.focus_b, 0.0, dd_free, &spec, |j, lo, hi| {
-            diff[j * nx + lo] += l_free;
-            // The end of a span reaching the row's last cell needs no entry.
-            if hi + 1 < nx {
-                diff[j * nx + hi + 1] -= l_free;
-            }
-            carved += (hi - lo + 1) as u64;
-        })?;
-    }
-    for row in diff.chunks_exact_mut(nx) {
-        let mut acc = 0.0;
-        for v in row {
-            acc += *v;
-            *v = acc;
+        if let Some(band) = Band::new(p.ellipse.focus_a, p.ellipse.focus_b, 0.0, dd_free, &spec)? {
+            bands.push(band);
         }
     }
+    if nx == 0 {
+        return Ok(0);
+    }
+    let carved = ctx
+        .free
+        .par_chunks_mut(BAND_ROWS * nx)
+        .enumerate()
+        .map(|(t, diff)| {
+            let rows = t * BAND_ROWS..t * BAND_ROWS + diff.len() / nx;
+            let mut carved = 0u64;
+            for band in &bands {
+                let (lo, hi) = band.rows();
+                if hi < rows.start || lo >= rows.end {
+                    continue;
+                }
+                band.spans_in_rows(&spec, rows.clone(), |j, lo, hi| {
+                    let row = (j - rows.start) * nx;
+                    diff[row + lo] += l_free;
+                    // The end of a span reaching the row's last cell needs no entry.
+                    if hi + 1 < nx {
+                        diff[row + hi + 1] -= l_free;
+                    }
+                    carved += (hi - lo + 1) as u64;
+                });
+            }
+            for row in diff.chunks_exact_mut(nx) {
+                let mut acc = 0.0;
+                for v in row {
+                    acc += *v;
+                    *v = acc;
+                }
+            }
+            carved
+        })
+        .sum();
     Ok(carved)
 }
 
