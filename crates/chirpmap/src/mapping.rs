@@ -137,9 +137,8 @@ pub fn observed_points(obstacles: &[Obstacle], echoes: &[Echo]) -> Option<Vec<Po
     let pose_m = 0.5 * metric.observe_radius_m;
     let thin_m = 0.25 * metric.tol_m;
     let square = |p: Point, side_m: f64| ((p.x / side_m).floor() as i64, (p.y / side_m).floor() as i64);
-    let by_square = |a: &((i64, i64), Point), b: &((i64, i64), Point)| {
-        a.0.cmp(&b.0).then(a.1.x.total_cmp(&b.1.x)).then(a.1.y.total_cmp(&b.1.y))
-    };
+    // The fixed order of points: x, then y.
+    let xy = |p: &Point, q: &Point| p.x.total_cmp(&q.x).then(p.y.total_cmp(&q.y));
     // Measurements: one (source, listener) pair per pair of squares, the
     // first in (squares, coordinates) order.
     type Pair = ((i64, i64, i64, i64), (Point, Point));
@@ -150,10 +149,7 @@ pub fn observed_points(obstacles: &[Obstacle], echoes: &[Echo]) -> Option<Vec<Po
             ((s.0, s.1, l.0, l.1), (e.source, e.listener))
         })
         .collect();
-    meas.sort_by(|a, b| {
-        let xy = |p: Point, q: Point| p.x.total_cmp(&q.x).then(p.y.total_cmp(&q.y));
-        a.0.cmp(&b.0).then(xy(a.1.0, b.1.0)).then(xy(a.1.1, b.1.1))
-    });
+    meas.sort_by(|a, b| a.0.cmp(&b.0).then(xy(&a.1.0, &b.1.0)).then(xy(&a.1.1, &b.1.1)));
     meas.dedup_by_key(|m| m.0);
     let step = meas.len().div_ceil(MAX_OBSERVED_MEASUREMENTS).max(1);
     let mut kept: Vec<(Point, Point)> = meas.into_iter().step_by(step).map(|m| m.1).collect();
@@ -161,7 +157,7 @@ pub fn observed_points(obstacles: &[Obstacle], echoes: &[Echo]) -> Option<Vec<Po
         return None;
     }
     // One call of the exact model per source.
-    kept.sort_by(|a, b| a.0.x.total_cmp(&b.0.x).then(a.0.y.total_cmp(&b.0.y)));
+    kept.sort_by(|a, b| xy(&a.0, &b.0));
     let scene = ExactScene::from_obstacles(obstacles);
     // No merging of equal paths (the default merges arrivals within 1 µm,
     // as one echo): a corridor walked along its centre line hears both
@@ -175,7 +171,7 @@ pub fn observed_points(obstacles: &[Obstacle], echoes: &[Echo]) -> Option<Vec<Po
             points.push((square(p, thin_m), p));
         }
     }
-    points.sort_by(by_square);
+    points.sort_by(|a, b| a.0.cmp(&b.0).then(xy(&a.1, &b.1)));
     points.dedup_by_key(|c| c.0);
     (!points.is_empty()).then(|| points.into_iter().map(|(_, p)| p).collect())
 }

@@ -663,11 +663,8 @@ fn carve_free(ctx: &mut Ctx) -> Result<u64, CoreError> {
         .map(|(t, diff)| {
             let rows = t * BAND_ROWS..t * BAND_ROWS + diff.len() / nx;
             let mut carved = 0u64;
+            // (A band that misses these rows gives no spans.)
             for band in &bands {
-                let (lo, hi) = band.rows();
-                if hi < rows.start || lo >= rows.end {
-                    continue;
-                }
                 band.spans_in_rows(&spec, rows.clone(), |j, lo, hi| {
                     let row = (j - rows.start) * nx;
                     diff[row + lo] += l_free;

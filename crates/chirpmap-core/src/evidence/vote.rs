@@ -435,11 +435,8 @@ impl Vote {
         let tasks = counts.par_chunks_mut(BAND_ROWS * nx).zip(stamp.par_chunks_mut(BAND_ROWS * nx)).enumerate();
         tasks.for_each(|(t, (counts, stamp))| {
             let rows = t * BAND_ROWS..t * BAND_ROWS + counts.len() / nx;
+            // (A band that misses these rows gives no spans.)
             for (mark, band) in bands.iter().flatten() {
-                let (lo, hi) = band.rows();
-                if hi < rows.start || lo >= rows.end {
-                    continue;
-                }
                 band.spans_in_rows(&spec, rows.clone(), |j, lo, hi| {
                     // Branch-free (the stamp test mispredicts along a
                     // band's edge): the same counts.
