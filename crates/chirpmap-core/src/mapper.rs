@@ -9,7 +9,7 @@ use crate::geometry::Point;
 use crate::grid::{Grid, GridSpec};
 #[cfg(test)]
 use crate::raster::for_each_entered_span;
-use crate::raster::{BLOCK, for_each_entered_block};
+use crate::raster::{entered_rows, for_each_entered_block, for_each_entered_block_in_rows};
 use serde::{Deserialize, Serialize};
 
 /// The four numbers of Algorithm 1's post-processing, paper values by default.
@@ -130,7 +130,7 @@ pub trait Mapper {
 ///
 /// (An 8 × 8-tiled layout was tried for cache locality of steep arcs and
 /// measured no faster than rows; see BENCHMARKS.md. What does pay is
-/// [`Mapper::add_echoes`]'s banding, see [`SpanBands`].)
+/// [`Mapper::add_echoes`]'s banding, see [`band_shift`].)
 #[derive(Debug, Clone)]
 pub struct AccumulationMapper {
     grid: Grid,
@@ -140,125 +140,39 @@ pub struct AccumulationMapper {
     /// the most times one echo can add it to a cell. While it is finite no
     /// cell can overflow to infinity (issue 8, item 7).
     max_cell_bound: f64,
-    /// Span buffers of [`Mapper::add_echoes`], one per parallel part of a
-    /// batch, empty between calls (kept for their capacity).
-    parts: Vec<SpanBands>,
 }
 
-/// Bytes of grid per band of [`SpanBands`]: a band's cells stay in the
-/// core's L2 cache (≥ 512 KiB on the machines measured) while its spans are
-/// added.
+/// Bytes of grid per band of rows: a band's cells stay in the core's L2
+/// cache (≥ 512 KiB on the machines measured) while its echoes are added.
 const BAND_BYTES: usize = 512 << 10;
 
-/// Spans buffered before they are added: 8 MB of records (4096 in tests, so
-/// that they flush mid-batch).
-const MAX_PENDING_SPANS: usize = if cfg!(test) { 1 << 12 } else { 1 << 20 };
+/// Echoes checked before they are added in one banded pass: bounds the
+/// memory of their ellipses (~100 bytes each) whatever the number of
+/// echoes (100 in tests, so that batches split).
+const MAX_BATCH_ECHOES: usize = if cfg!(test) { 100 } else { 1 << 16 };
 
-/// Header record of [`SpanBands`]: the spans after it carry the weight of
-/// echo `.1` of the batch.
-const HEADER: u32 = u32::MAX;
-
-/// Cache blocking of Algorithm 1's accumulation (issue 14). An ellipse's
-/// rows are 8 KB apart on the default grid, so adding its spans as they are
-/// rasterised touches a new cache line of an L3-resident grid per span.
-/// Instead the spans of many echoes are dealt into horizontal bands of
-/// [`BAND_BYTES`] each, in echo order, then added band by band while the
-/// band sits in L2 (replaying the recorded spans of 10 000 benchmark echoes
-/// ran 3× faster banded; BENCHMARKS.md). Every cell lies in one band and
-/// receives its additions in echo order, so the sums are bit-identical to
-/// adding echo after echo.
+/// Cache blocking of Algorithm 1's accumulation (issue 14): the grid is cut
+/// into horizontal bands of `2^shift` rows ([`BAND_BYTES`] each), and each
+/// band walks every echo of a batch in order, rasterising only the rows it
+/// holds ([`for_each_entered_block_in_rows`]) and adding them while the band
+/// sits in L2. An ellipse's rows are 8 KB apart on the default grid, so
+/// adding an echo's spans as they are rasterised touches a new cache line of
+/// an L3-resident grid per span; banding ran the 10 000 benchmark echoes 3×
+/// faster (BENCHMARKS.md). Bands run on rayon's threads; every cell lies in
+/// one band and receives its additions in echo order, so the sums are
+/// bit-identical to adding echo after echo, whatever the thread count.
 ///
-/// Both halves run on rayon's pool: consecutive parts of a batch of echoes
-/// are dealt into one `SpanBands` each at once, then the bands are added at
-/// once, each band replaying the parts in order. A cell still receives its
-/// additions in echo order, so the map is bit-identical whatever the thread
-/// count.
-#[derive(Debug, Clone, Default)]
-pub struct SpanBands {
-    /// Rows per band = 2^shift.
-    shift: u32,
-    /// Per band: `(offset of the span's first cell from the band's first
-    /// cell, length)`, or `(HEADER, echo index in the batch)`.
-    lists: Vec<Vec<(u32, u32)>>,
-    /// Weights of the batch's echoes.
-    weights: Vec<f64>,
-}
-
-impl SpanBands {
-    /// Bands for `spec`, or `None` when banding cannot pay or cannot
-    /// address the grid (one band covers it, or a row's offsets overflow u32).
-    fn prepare(&mut self, spec: &GridSpec) -> Option<()> {
-        let nx = spec.nx.max(1);
-        if nx > (u32::MAX / 2) as usize {
-            return None;
-        }
-        let rows = (BAND_BYTES / 8 / nx).max(1);
-        let shift = usize::BITS - 1 - rows.leading_zeros();
-        let n_bands = spec.ny.div_ceil(1 << shift);
-        if n_bands < 2 || (nx << shift) > (u32::MAX / 2) as usize {
-            return None;
-        }
-        self.shift = shift;
-        self.lists.resize_with(n_bands, Vec::new);
-        self.lists.truncate(n_bands);
-        Some(())
-    }
-
-    /// Records the spans of `e` with weight `w`.
-    #[inline(always)]
-    fn deal(&mut self, e: &Ellipse, spec: &GridSpec, w: f64) {
-        let k = self.weights.len() as u32;
-        self.weights.push(w);
-        let (nx, shift) = (spec.nx, self.shift);
-        let lists = &mut self.lists;
-        let mut records = [(0u32, 0u32); 2 * BLOCK + 1];
-        for_each_entered_block(e, spec, |b| {
-            // The block's rows by band (a block may straddle two).
-            let mut k0 = 0;
-            while k0 < b.len {
-                let band = (b.j0 + k0) >> shift;
-                let k1 = (((band + 1) << shift) - b.j0).min(b.len);
-                records[0] = (HEADER, k);
-                let mut m = 1;
-                let mut row = (b.j0 + k0 - (band << shift)) * nx;
-                for r in k0..k1 {
-                    // Branch-free compaction: an empty span's record is
-                    // overwritten by the next.
-                    let (lo1, hi1, lo2, hi2) = (b.lo1[r], b.hi1[r], b.lo2[r], b.hi2[r]);
-                    records[m] = ((row as i64 + lo1) as u32, (hi1 - lo1 + 1) as u32);
-                    m += usize::from(lo1 <= hi1);
-                    records[m] = ((row as i64 + lo2) as u32, (hi2 - lo2 + 1) as u32);
-                    m += usize::from(lo2 <= hi2);
-                    row += nx;
-                }
-                lists[band].extend_from_slice(&records[..m]);
-                k0 = k1;
-            }
-        });
-    }
-
-    /// Empties the buffers, keeping their capacity.
-    fn clear(&mut self) {
-        self.lists.iter_mut().for_each(Vec::clear);
-        self.weights.clear();
-    }
-}
-
-/// Adds every span recorded in `parts` to `data`, band by band (bands in
-/// parallel, each replaying the parts in order), empties the parts, and
-/// returns the number of cells updated.
-fn flush_parts(parts: &mut [SpanBands], spec: &GridSpec, data: &mut [f64]) -> u64 {
-    use rayon::prelude::*;
-    let Some(first) = parts.first() else { return 0 };
-    let band_cells = spec.nx << first.shift;
-    let parts_ref = &*parts;
-    let n = data
-        .par_chunks_mut(band_cells)
-        .enumerate()
-        .map(|(b, cells)| parts_ref.iter().map(|p| replay(&p.lists[b], &p.weights, cells)).sum::<u64>())
-        .sum();
-    parts.iter_mut().for_each(SpanBands::clear);
-    n
+/// (Until session 19 the spans were first dealt into per-band record lists,
+/// up to 8 MB of fresh memory per batch, then replayed band by band; the
+/// band walking its echoes needs no record and writes each span once.)
+///
+/// `None` when banding cannot pay (one band covers the grid).
+fn band_shift(spec: &GridSpec) -> Option<u32> {
+    let nx = spec.nx.max(1);
+    let rows = (BAND_BYTES / 8 / nx).max(1);
+    let shift = usize::BITS - 1 - rows.leading_zeros();
+    let n_bands = spec.ny.div_ceil(1 << shift);
+    (n_bands >= 2).then_some(shift)
 }
 
 /// Spans up to this long are added with one fixed-width, branch-free write.
@@ -294,35 +208,12 @@ fn add_span(data: &mut [f64], start: usize, len: usize, w: f64, masks: &[[f64; S
     }
 }
 
-/// Adds a band's recorded spans to its cells; returns the cells updated.
-fn replay(list: &[(u32, u32)], weights: &[f64], cells: &mut [f64]) -> u64 {
-    let mut w = 0.0;
-    let mut masks = span_masks(w);
-    let mut n = 0;
-    for &(offset, len) in list {
-        if offset == HEADER {
-            w = weights[len as usize];
-            masks = span_masks(w);
-            continue;
-        }
-        add_span(cells, offset as usize, len as usize, w, &masks);
-        n += u64::from(len);
-    }
-    n
-}
-
 impl AccumulationMapper {
     /// Mapper on the grid `spec`; errors when `params` fail
     /// [`MappingParams::validate`].
     pub fn new(spec: GridSpec, params: MappingParams) -> Result<Self, CoreError> {
         params.validate()?;
-        Ok(Self {
-            grid: Grid::zeros_prefaulted(spec),
-            params,
-            cells_updated: 0,
-            max_cell_bound: 0.0,
-            parts: Vec::new(),
-        })
+        Ok(Self { grid: Grid::zeros_prefaulted(spec), params, cells_updated: 0, max_cell_bound: 0.0 })
     }
 
     /// Total cell updates so far (for benchmarks and progress reporting).
@@ -384,90 +275,98 @@ impl AccumulationMapper {
         Ok(e)
     }
 
-    /// [`Mapper::add_echoes`] through [`SpanBands`]: the same cells get the
-    /// same additions in the same order as echo-by-echo accumulation.
-    /// Echoes are checked in order (the map gets every echo before the
-    /// first bad one, like [`Mapper::add_echo`]) and mapped in batches of at
-    /// most [`MAX_PENDING_SPANS`] spans (two per row a bounding box covers),
-    /// each batch split over rayon's threads.
-    fn add_banded(&mut self, echoes: &[Echo]) -> Result<(), CoreError> {
-        let spec = self.grid.spec;
-        let n_parts = rayon::current_num_threads().max(1);
-        let template = self.parts.first().cloned().unwrap_or_default();
-        self.parts.resize_with(n_parts, || template.clone());
-        self.parts.truncate(n_parts);
-        for part in &mut self.parts {
-            part.prepare(&spec);
-        }
-        // The batch: checked echoes while their spans fit (the memory of a
-        // batch is bounded whatever the number of echoes).
-        let mut batch: Vec<(Ellipse, f64)> = Vec::new();
-        let mut spans = 0;
+    /// [`Mapper::add_echoes`] by bands of `2^shift` rows ([`band_shift`]):
+    /// the same cells get the same additions in the same order as
+    /// echo-by-echo accumulation. Echoes are checked in order (the map gets
+    /// every echo before the first bad one, like [`Mapper::add_echo`]) and
+    /// added in batches of at most [`MAX_BATCH_ECHOES`].
+    fn add_banded(&mut self, echoes: &[Echo], shift: u32) -> Result<(), CoreError> {
+        let mut batch: Vec<(Ellipse, f64)> = Vec::with_capacity(echoes.len().min(MAX_BATCH_ECHOES));
         for echo in echoes {
             let e = match self.check(echo) {
                 Ok(e) => e,
                 Err(err) => {
-                    self.add_batch(&batch);
+                    self.add_batch(&batch, shift);
                     return Err(err);
                 }
             };
-            let rows = 2 * rows_covered(&e, &spec);
-            if !batch.is_empty() && (spans + rows > MAX_PENDING_SPANS || batch.len() >= MAX_PENDING_SPANS) {
-                self.add_batch(&batch);
+            if batch.len() == MAX_BATCH_ECHOES {
+                self.add_batch(&batch, shift);
                 batch.clear();
-                spans = 0;
             }
             batch.push((e, echo.weight));
-            spans += rows;
         }
-        self.add_batch(&batch);
+        self.add_batch(&batch, shift);
         Ok(())
     }
 
-    /// Deals `batch` into one part per thread (consecutive echoes each), then
-    /// adds every part's spans band by band.
-    fn add_batch(&mut self, batch: &[(Ellipse, f64)]) {
+    /// Adds `batch` band by band, the bands on rayon's threads.
+    fn add_batch(&mut self, batch: &[(Ellipse, f64)], shift: u32) {
         use rayon::prelude::*;
         if batch.is_empty() {
             return;
         }
         let spec = self.grid.spec;
-        let per_part = batch.len().div_ceil(self.parts.len());
+        let rows: Vec<(usize, usize)> =
+            batch.iter().map(|(e, _)| entered_rows(e, &spec).unwrap_or((usize::MAX, 0))).collect();
         let arch = pulp::Arch::new();
-        self.parts.par_iter_mut().zip(batch.par_chunks(per_part)).for_each(|(part, chunk)| {
-            arch.dispatch(Deal { part, chunk, spec: &spec });
-        });
-        self.cells_updated += flush_parts(&mut self.parts, &spec, &mut self.grid.data);
+        self.cells_updated += self
+            .grid
+            .data
+            .par_chunks_mut(spec.nx << shift)
+            .enumerate()
+            .map(|(b, cells)| {
+                let first_row = b << shift;
+                let band = first_row..first_row + cells.len() / spec.nx;
+                arch.dispatch(AddBand { cells, band, batch, rows: &rows, spec: &spec })
+            })
+            .sum::<u64>();
     }
 }
 
-/// A chunk of ellipses dealt into one part's span lists
-/// ([`SpanBands::deal`]), compiled for the widest vectors the CPU has
-/// ([`pulp`]'s runtime dispatch): the rasteriser's branch-free row passes.
-/// No operation is fused, so the spans are the same either way.
-struct Deal<'a> {
-    part: &'a mut SpanBands,
-    chunk: &'a [(Ellipse, f64)],
+/// One band's cells walking a batch of ellipses in order
+/// ([`for_each_entered_block_in_rows`]), compiled for the widest vectors the
+/// CPU has ([`pulp`]'s runtime dispatch): the rasteriser's branch-free row
+/// passes. No operation is fused, so the spans are the same either way.
+struct AddBand<'a> {
+    /// The band's cells, from its first row's first cell.
+    cells: &'a mut [f64],
+    /// The band's grid rows.
+    band: std::ops::Range<usize>,
+    batch: &'a [(Ellipse, f64)],
+    /// Each ellipse's [`entered_rows`] (`(usize::MAX, 0)` when it misses the grid).
+    rows: &'a [(usize, usize)],
     spec: &'a GridSpec,
 }
 
-impl pulp::WithSimd for Deal<'_> {
-    type Output = ();
+impl pulp::WithSimd for AddBand<'_> {
+    type Output = u64;
     #[inline(always)]
-    fn with_simd<S: pulp::Simd>(self, _: S) {
-        for (e, w) in self.chunk {
-            self.part.deal(e, self.spec, *w);
+    fn with_simd<S: pulp::Simd>(self, _: S) -> u64 {
+        let Self { cells, band, batch, rows, spec } = self;
+        let nx = spec.nx;
+        let mut n = 0u64;
+        for ((e, w), &(first, last)) in batch.iter().zip(rows) {
+            if first >= band.end || last < band.start {
+                continue;
+            }
+            let masks = span_masks(*w);
+            for_each_entered_block_in_rows(e, spec, band.clone(), |b| {
+                let mut base = (b.j0 - band.start) * nx;
+                for r in 0..b.len {
+                    for (lo, hi) in [(b.lo1[r], b.hi1[r]), (b.lo2[r], b.hi2[r])] {
+                        if lo <= hi {
+                            let len = (hi - lo + 1) as usize;
+                            add_span(cells, base + lo as usize, len, *w, &masks);
+                            n += len as u64;
+                        }
+                    }
+                    base += nx;
+                }
+            });
         }
+        n
     }
-}
-
-/// Grid rows the bounding box of `e` covers (an upper bound on the rows the
-/// rasteriser enters).
-fn rows_covered(e: &Ellipse, spec: &GridSpec) -> usize {
-    let (lo, hi) = e.bbox();
-    let row = |y: f64| ((y - spec.y_min_m) / spec.cell_m).floor().clamp(-1.0, spec.ny as f64);
-    let (j0, j1) = (row(lo.y), row(hi.y));
-    if j1 < 0.0 || j0 >= spec.ny as f64 { 0 } else { (j1.min(spec.ny as f64 - 1.0) - j0.max(0.0)) as usize + 1 }
 }
 
 impl Mapper for AccumulationMapper {
@@ -475,10 +374,10 @@ impl Mapper for AccumulationMapper {
         self.accumulate(echo)
     }
     fn add_echoes(&mut self, echoes: &[Echo]) -> Result<(), CoreError> {
-        if self.params.ellipse_points > 0 || SpanBands::default().prepare(&self.grid.spec).is_none() {
-            return echoes.iter().try_for_each(|e| self.accumulate(e));
+        match band_shift(&self.grid.spec).filter(|_| self.params.ellipse_points == 0) {
+            Some(shift) => self.add_banded(echoes, shift),
+            None => echoes.iter().try_for_each(|e| self.accumulate(e)),
         }
-        self.add_banded(echoes)
     }
     fn grid(&self) -> &Grid {
         &self.grid
@@ -1163,7 +1062,7 @@ mod tests {
             for e in &echoes {
                 single.add_echo(e).unwrap();
             }
-            assert!(SpanBands::default().prepare(&spec).is_some(), "grid {k} is not banded");
+            assert!(band_shift(&spec).is_some(), "grid {k} is not banded");
             assert_eq!(bits(&banded.grid().data), bits(&want), "banded, grid {k}");
             assert_eq!(bits(&single.grid().data), bits(&want), "per echo, grid {k}");
             assert_eq!((banded.cells_updated(), single.cells_updated()), (cells, cells));

@@ -117,15 +117,37 @@ impl RowBlock {
 /// hold one arc; the leftmost and rightmost points widen their rows) are
 /// patched in between, so every loop over rows is branch-free and vectorises.
 #[inline(always)]
-pub fn for_each_entered_block(e: &Ellipse, spec: &GridSpec, mut block: impl FnMut(&RowBlock)) {
+pub fn for_each_entered_block(e: &Ellipse, spec: &GridSpec, block: impl FnMut(&RowBlock)) {
+    for_each_entered_block_in_rows(e, spec, 0..spec.ny, block);
+}
+
+/// [`for_each_entered_block`] restricted to the grid rows `rows`: the same
+/// spans for those rows, so a map can be built band of rows by band of rows
+/// (each band's cells in cache) without recording spans. A row's crossings
+/// depend only on its index (`(m0 + k) − cy` with exact integer sums,
+/// whatever row a block starts at), so the cells are bit for bit those of
+/// the whole ellipse's walk (test `rows_in_bands_are_the_whole_walk`).
+#[inline(always)]
+pub fn for_each_entered_block_in_rows(
+    e: &Ellipse,
+    spec: &GridSpec,
+    rows: std::ops::Range<usize>,
+    mut block: impl FnMut(&RowBlock),
+) {
+    if rows.is_empty() {
+        return;
+    }
     if spec.nx as f64 <= MAX_FAST_COLS {
-        blocks(e, spec, block);
+        blocks(e, spec, (rows.start as i64, rows.end as i64 - 1), block);
         return;
     }
     // Wider than any grid in memory: the reference, one row per block (its
     // spans of a row are consecutive, at most two, the second after the first).
     let mut b = RowBlock::new();
     for_each_entered_span_reference(e, spec, |j, lo, hi| {
+        if !rows.contains(&j) {
+            return;
+        }
         let (lo, hi) = (lo as i64, hi as i64);
         if b.len == 1 && b.j0 == j {
             (b.lo2[0], b.hi2[0]) = (lo, hi);
@@ -152,9 +174,35 @@ pub fn for_each_entered_row(e: &Ellipse, spec: &GridSpec, mut row: impl FnMut(us
     });
 }
 
-/// [`for_each_entered_block`] for grids of at most [`MAX_FAST_COLS`] columns.
+/// The grid rows `[first, last]` [`for_each_entered_block`] walks for `e`
+/// (each one holds at least one entered cell), or `None` when the ellipse
+/// misses the grid: a cheap test of whether a band of rows needs the walk.
+pub fn entered_rows(e: &Ellipse, spec: &GridSpec) -> Option<(usize, usize)> {
+    if spec.nx as f64 > MAX_FAST_COLS {
+        let (mut first, mut last) = (None, 0);
+        for_each_entered_span_reference(e, spec, |j, _, _| {
+            first.get_or_insert(j);
+            last = j;
+        });
+        return first.map(|f| (f, last));
+    }
+    let (qa, _, qc, _) = e.conic();
+    let inv_w = 1.0 / spec.cell_m;
+    let (hx, hy) = (qc.sqrt() * inv_w, qa.sqrt() * inv_w);
+    let cx = (e.center.x - spec.x_min_m) * inv_w;
+    let cy = (e.center.y - spec.y_min_m) * inv_w;
+    let ny = spec.ny as i64;
+    if cx + hx < 0.0 || cy + hy < 0.0 || cx - hx >= spec.nx as f64 || cy - hy >= ny as f64 {
+        return None;
+    }
+    let (first, last) = (floor_i64(cy - hy).max(0), floor_i64(cy + hy).min(ny - 1));
+    (first <= last).then_some((first as usize, last as usize))
+}
+
+/// [`for_each_entered_block`] for grids of at most [`MAX_FAST_COLS`] columns,
+/// in the rows `first..=last` of `rows` only.
 #[inline(always)]
-fn blocks(e: &Ellipse, spec: &GridSpec, mut block: impl FnMut(&RowBlock)) {
+fn blocks(e: &Ellipse, spec: &GridSpec, rows: (i64, i64), mut block: impl FnMut(&RowBlock)) {
     let nx_f = spec.nx as f64;
     let (qa, qb, qc, _) = e.conic();
     let inv_w = 1.0 / spec.cell_m;
@@ -166,8 +214,8 @@ fn blocks(e: &Ellipse, spec: &GridSpec, mut block: impl FnMut(&RowBlock)) {
     if cx + hx < 0.0 || cy + hy < 0.0 || cx - hx >= nx_f || cy - hy >= ny as f64 {
         return;
     }
-    let j_first = floor_i64(cy - hy).max(0);
-    let j_last = floor_i64(cy + hy).min(ny - 1);
+    let j_first = floor_i64(cy - hy).max(0).max(rows.0);
+    let j_last = floor_i64(cy + hy).min(ny - 1).min(rows.1);
     let y_right = if qc > 0.0 { -qb * hx / (2.0 * qc) } else { 0.0 };
     let (k_mid, k_half) = if qa > 0.0 { (-qb / (2.0 * qa), e.semi_major_m * e.semi_minor_m / qa) } else { (0.0, 0.0) };
     let qa_c = qa * inv_w * inv_w;
@@ -554,8 +602,43 @@ mod tests {
         }
     }
 
+    /// Blocks of [`for_each_entered_block_in_rows`] over bands of `band`
+    /// rows, flattened to `(row, [lo1, hi1, lo2, hi2])`.
+    fn banded_rows(e: &Ellipse, s: &GridSpec, band: usize) -> Vec<(usize, [i64; 4])> {
+        let mut v = Vec::new();
+        let mut start = 0;
+        while start < s.ny {
+            let rows = start..(start + band).min(s.ny);
+            for_each_entered_block_in_rows(e, s, rows.clone(), |b| {
+                assert!(rows.contains(&b.j0) && rows.contains(&(b.j0 + b.len - 1)), "block outside its rows");
+                v.extend(b.rows());
+            });
+            start += band;
+        }
+        v
+    }
+
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(200))]
+        /// Walking an ellipse band of rows by band of rows gives every row
+        /// the whole walk gives, with the same spans, and nothing else; and
+        /// [`entered_rows`] names the first and last of them.
+        #[test]
+        fn rows_in_bands_are_the_whole_walk(
+            sx in -25.0..25.0f64, sy in -25.0..25.0f64, lx in -25.0..25.0f64, ly in -25.0..25.0f64,
+            dd in prop_oneof![Just(0.0), 0.0..0.3f64, 0.0..40.0f64],
+            band in prop_oneof![Just(1usize), 1..10usize, Just(64usize), 60..70usize, Just(400usize)],
+        ) {
+            prop_assume!(Point::new(sx, sy).dist(Point::new(lx, ly)) > 1e-3);
+            let s = spec();
+            let e = Ellipse::new(Point::new(sx, sy), Point::new(lx, ly), dd).unwrap();
+            let mut whole = Vec::new();
+            for_each_entered_block(&e, &s, |b| whole.extend(b.rows()));
+            prop_assert_eq!(&banded_rows(&e, &s, band), &whole);
+            let ends = whole.first().zip(whole.last()).map(|(a, b)| (a.0, b.0));
+            prop_assert_eq!(entered_rows(&e, &s), ends);
+        }
+
         #[test]
         fn fast_rasteriser_equals_literal_algorithm_1(
             sx in -12.0..12.0f64, sy in -12.0..12.0f64, lx in -12.0..12.0f64, ly in -12.0..12.0f64,
