@@ -69,34 +69,53 @@ fn npy_header(shape: (usize, usize)) -> Result<Vec<u8>> {
     Ok(out)
 }
 
-/// `map.npy` bytes of `grid` (see the module docs for the layout). Values
-/// are rounded to f32, the precision any plot needs; NaN and ±∞ pass
-/// through unchanged. A finite value beyond f32's range is an error naming
-/// its cell: it was written as ±∞ (echo weights of 1e300), a map no reader
-/// can normalise.
+/// `map.npy` bytes of `grid` (see the module docs for the layout): what
+/// [`write_npy_to`] writes.
+#[cfg(test)]
 pub fn npy_bytes(grid: &Grid) -> Result<Vec<u8>> {
+    let mut out = Vec::new();
+    write_npy_to(&mut out, grid)?;
+    Ok(out)
+}
+
+/// Cells converted per write of [`write_npy_to`] (64 KiB of float32).
+const NPY_CHUNK_CELLS: usize = 1 << 14;
+
+/// Writes `map.npy` of `grid` to `w` (see the module docs for the layout),
+/// chunk by chunk: the 4 MB of a default map are never held at once (a
+/// fresh buffer's page faults were 1 000 of a default `simulate`'s ~6 000).
+/// Values are rounded to f32, the precision any plot needs; NaN and ±∞
+/// pass through unchanged. A finite value beyond f32's range is an error
+/// naming its cell (the first such cell): it would be written as ±∞ (echo
+/// weights of 1e300), a map no reader can normalise.
+/// On that error part of the file may have been written; the commands
+/// stage their outputs, so it never lands.
+pub fn write_npy_to(w: &mut impl std::io::Write, grid: &Grid) -> Result<()> {
     check_shape(grid)?;
-    let mut out = npy_header((grid.spec.ny, grid.spec.nx))?;
-    let header = out.len();
-    out.resize(header + grid.data.len() * 4, 0);
+    w.write_all(&npy_header((grid.spec.ny, grid.spec.nx))?)?;
+    let mut buf = vec![0u8; NPY_CHUNK_CELLS.min(grid.data.len()) * 4];
     // Overflow is noted without a branch, so the loop over every cell (a
     // million in the default run) stays as straight as it was; the culprit
     // is looked up only then.
     let overflows = |v: f64| (v as f32).is_infinite() & v.is_finite();
-    let mut overflow = false;
-    for (dst, &v) in out[header..].chunks_exact_mut(4).zip(&grid.data) {
-        overflow |= overflows(v);
-        dst.copy_from_slice(&(v as f32).to_le_bytes());
+    for (c, cells) in grid.data.chunks(NPY_CHUNK_CELLS).enumerate() {
+        let mut overflow = false;
+        for (dst, &v) in buf.chunks_exact_mut(4).zip(cells) {
+            overflow |= overflows(v);
+            dst.copy_from_slice(&(v as f32).to_le_bytes());
+        }
+        if let Some(k) = overflow.then(|| cells.iter().position(|&v| overflows(v))).flatten() {
+            let k = c * NPY_CHUNK_CELLS + k;
+            let (i, j) = (k % grid.spec.nx, k / grid.spec.nx);
+            bail!(
+                "map.npy: cell ({i}, {j}) holds {}, beyond float32's range (±{}); scale the echoes' weights down",
+                Num(grid.data[k]),
+                Num(f64::from(f32::MAX))
+            );
+        }
+        w.write_all(&buf[..cells.len() * 4])?;
     }
-    if let Some(k) = overflow.then(|| grid.data.iter().position(|&v| overflows(v))).flatten() {
-        let (i, j) = (k % grid.spec.nx, k / grid.spec.nx);
-        bail!(
-            "map.npy: cell ({i}, {j}) holds {}, beyond float32's range (±{}); scale the echoes' weights down",
-            Num(grid.data[k]),
-            Num(f64::from(f32::MAX))
-        );
-    }
-    Ok(out)
+    Ok(())
 }
 
 /// Writes [`npy_bytes`] to `path` (the commands stage bytes instead).

@@ -2,7 +2,7 @@
 //! surfaces, the grid as data (NumPy and ROS map_server), the figure, and
 //! the summary's map fields.
 
-use crate::mapdata::{MapValues, npy_bytes, ros_map};
+use crate::mapdata::{MapValues, ros_map, write_npy_to};
 use crate::output::Staged;
 use crate::plot::{ColourMap, MapPlot, MapStyle, render_map_with};
 use crate::tables::{highlights_csv, surfaces_csv};
@@ -77,7 +77,7 @@ pub fn write_map(out: &mut Staged, map: &MapResult, plot: &MapPlot, fmt: PlotFor
 /// mapper) `surfaces.csv`.
 fn write_map_data(out: &mut Staged, map: &MapResult) -> Result<()> {
     out.write("highlights.csv", highlights_csv(&map.highlights))?;
-    out.write("map.npy", npy_bytes(&map.grid)?)?;
+    out.write_with("map.npy", |f| write_npy_to(f, &map.grid))?;
     let ros = match map.params.mapper {
         MapperKind::Paper => ros_map(&map.grid, MapValues::Evidence, "map.pgm")?,
         MapperKind::Evidence => {

@@ -406,6 +406,16 @@ impl Staged {
         std::fs::write(&p, contents).with_context(|| format!("cannot write {}", self.dir.join(name).display()))
     }
 
+    /// Writes the declared output `name` through `write`, which gets the
+    /// open file: for outputs too large to build in memory first. I/O
+    /// errors name the file; `write`'s own errors pass through.
+    pub fn write_with(&mut self, name: &str, write: impl FnOnce(&mut File) -> Result<()>) -> Result<()> {
+        let p = self.path(name)?;
+        let cannot = || format!("cannot write {}", self.dir.join(name).display());
+        let mut f = File::create(&p).with_context(cannot)?;
+        write(&mut f).map_err(|e| if e.is::<std::io::Error>() { e.context(cannot()) } else { e })
+    }
+
     /// Moves every written output into place and records them in the
     /// manifest, with the directory locked. In an output directory, files the
     /// previous run listed but this one did not write (say `spectra.csv` of an
