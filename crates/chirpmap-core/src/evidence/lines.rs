@@ -1042,7 +1042,7 @@ fn hough_peaks(ctx: &Ctx, tan: &Tangents, g: &Geom) -> Vec<(f32, usize, usize)> 
     // Triangular votes (1 at the tangent offset, 0 at the band's edge plus a
     // bin) so that the angle where the offsets agree best is a strict peak
     // rather than one end of a plateau of equal counts.
-    let mut acc = vec![0f32; k_bins * n_rho];
+    let mut acc = crate::grid::prefaulted(k_bins * n_rho, 0f32);
     let half: Vec<f64> = (0..tan.len()).map(|k| tau(ctx, k) + rho_bin).collect();
     let inv_half: Vec<f64> = half.iter().map(|h| 1.0 / h).collect();
     // At most the row: a huge σ (a band wider than the grid) must not size

@@ -411,10 +411,10 @@ impl Vote {
         // A cell centre within half a diagonal of the band: the focal excess
         // changes by at most 2 per metre.
         let slack_m = std::f64::consts::SQRT_2 * cell;
-        let mut counts = vec![0u32; nx * ny];
+        let mut counts = crate::grid::prefaulted(nx * ny, 0u32);
         // The last measurement (+1) that voted for each cell: one vote per
         // measurement, however many of its echoes cover the cell.
-        let mut stamp = vec![0u32; nx * ny];
+        let mut stamp = crate::grid::prefaulted(nx * ny, 0u32);
         let bands: Vec<Option<(u32, Band)>> = left
             .iter()
             .map(|&k| {
