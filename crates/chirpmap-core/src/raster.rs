@@ -186,17 +186,36 @@ pub fn entered_rows(e: &Ellipse, spec: &GridSpec) -> Option<(usize, usize)> {
         });
         return first.map(|f| (f, last));
     }
-    let (qa, _, qc, _) = e.conic();
-    let inv_w = 1.0 / spec.cell_m;
-    let (hx, hy) = (qc.sqrt() * inv_w, qa.sqrt() * inv_w);
-    let cx = (e.center.x - spec.x_min_m) * inv_w;
-    let cy = (e.center.y - spec.y_min_m) * inv_w;
-    let ny = spec.ny as i64;
-    if cx + hx < 0.0 || cy + hy < 0.0 || cx - hx >= spec.nx as f64 || cy - hy >= ny as f64 {
-        return None;
-    }
-    let (first, last) = (floor_i64(cy - hy).max(0), floor_i64(cy + hy).min(ny - 1));
+    let f = CellFrame::of(e, spec)?;
+    let (first, last) = (floor_i64(f.cy - f.hy).max(0), floor_i64(f.cy + f.hy).min(spec.ny as i64 - 1));
     (first <= last).then_some((first as usize, last as usize))
+}
+
+/// An ellipse in cell units: its conic (Ellipse::conic), its half-extents
+/// and its centre relative to the grid's corner, computed as the reference
+/// rasteriser computes them.
+struct CellFrame {
+    qa: f64,
+    qb: f64,
+    qc: f64,
+    hx: f64,
+    hy: f64,
+    cx: f64,
+    cy: f64,
+}
+
+impl CellFrame {
+    /// `None` when the ellipse's box misses the grid.
+    #[inline(always)]
+    fn of(e: &Ellipse, spec: &GridSpec) -> Option<Self> {
+        let (qa, qb, qc, _) = e.conic();
+        let inv_w = 1.0 / spec.cell_m;
+        let (hx, hy) = (qc.sqrt() * inv_w, qa.sqrt() * inv_w);
+        let cx = (e.center.x - spec.x_min_m) * inv_w;
+        let cy = (e.center.y - spec.y_min_m) * inv_w;
+        let misses = cx + hx < 0.0 || cy + hy < 0.0 || cx - hx >= spec.nx as f64 || cy - hy >= spec.ny as f64;
+        (!misses).then_some(Self { qa, qb, qc, hx, hy, cx, cy })
+    }
 }
 
 /// [`for_each_entered_block`] for grids of at most [`MAX_FAST_COLS`] columns,
@@ -204,16 +223,10 @@ pub fn entered_rows(e: &Ellipse, spec: &GridSpec) -> Option<(usize, usize)> {
 #[inline(always)]
 fn blocks(e: &Ellipse, spec: &GridSpec, rows: (i64, i64), mut block: impl FnMut(&RowBlock)) {
     let nx_f = spec.nx as f64;
-    let (qa, qb, qc, _) = e.conic();
-    let inv_w = 1.0 / spec.cell_m;
     // The same quantities, computed the same way, as the reference.
-    let (hx, hy) = (qc.sqrt() * inv_w, qa.sqrt() * inv_w);
-    let cx = (e.center.x - spec.x_min_m) * inv_w;
-    let cy = (e.center.y - spec.y_min_m) * inv_w;
+    let Some(CellFrame { qa, qb, qc, hx, hy, cx, cy }) = CellFrame::of(e, spec) else { return };
+    let inv_w = 1.0 / spec.cell_m;
     let ny = spec.ny as i64;
-    if cx + hx < 0.0 || cy + hy < 0.0 || cx - hx >= nx_f || cy - hy >= ny as f64 {
-        return;
-    }
     let j_first = floor_i64(cy - hy).max(0).max(rows.0);
     let j_last = floor_i64(cy + hy).min(ny - 1).min(rows.1);
     let y_right = if qc > 0.0 { -qb * hx / (2.0 * qc) } else { 0.0 };
