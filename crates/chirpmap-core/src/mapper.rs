@@ -9,7 +9,7 @@ use crate::geometry::Point;
 use crate::grid::{Grid, GridSpec};
 #[cfg(test)]
 use crate::raster::for_each_entered_span;
-use crate::raster::{entered_rows, for_each_entered_block, for_each_entered_block_in_rows};
+use crate::raster::{entered_rows, for_each_entered_block_in_rows};
 use serde::{Deserialize, Serialize};
 
 /// The four numbers of Algorithm 1's post-processing, paper values by default.
@@ -307,8 +307,7 @@ impl AccumulationMapper {
             return;
         }
         let spec = self.grid.spec;
-        let rows: Vec<(usize, usize)> =
-            batch.iter().map(|(e, _)| entered_rows(e, &spec).unwrap_or((usize::MAX, 0))).collect();
+        let rows: Vec<Option<(usize, usize)>> = batch.iter().map(|(e, _)| entered_rows(e, &spec)).collect();
         let arch = pulp::Arch::new();
         self.cells_updated += self
             .grid
@@ -334,8 +333,8 @@ struct AddBand<'a> {
     /// The band's grid rows.
     band: std::ops::Range<usize>,
     batch: &'a [(Ellipse, f64)],
-    /// Each ellipse's [`entered_rows`] (`(usize::MAX, 0)` when it misses the grid).
-    rows: &'a [(usize, usize)],
+    /// Each ellipse's [`entered_rows`].
+    rows: &'a [Option<(usize, usize)>],
     spec: &'a GridSpec,
 }
 
@@ -344,26 +343,11 @@ impl pulp::WithSimd for AddBand<'_> {
     #[inline(always)]
     fn with_simd<S: pulp::Simd>(self, _: S) -> u64 {
         let Self { cells, band, batch, rows, spec } = self;
-        let nx = spec.nx;
         let mut n = 0u64;
-        for ((e, w), &(first, last)) in batch.iter().zip(rows) {
-            if first >= band.end || last < band.start {
-                continue;
+        for ((e, w), rows) in batch.iter().zip(rows) {
+            if rows.is_some_and(|(first, last)| first < band.end && last >= band.start) {
+                n += add_ellipse_in_rows(e, spec, band.clone(), cells, *w);
             }
-            let masks = span_masks(*w);
-            for_each_entered_block_in_rows(e, spec, band.clone(), |b| {
-                let mut base = (b.j0 - band.start) * nx;
-                for r in 0..b.len {
-                    for (lo, hi) in [(b.lo1[r], b.hi1[r]), (b.lo2[r], b.hi2[r])] {
-                        if lo <= hi {
-                            let len = (hi - lo + 1) as usize;
-                            add_span(cells, base + lo as usize, len, *w, &masks);
-                            n += len as u64;
-                        }
-                    }
-                    base += nx;
-                }
-            });
         }
         n
     }
@@ -397,16 +381,24 @@ impl Mapper for AccumulationMapper {
 /// written branch-free with `+0.0` in the lanes after them (see the mapper's
 /// `add_span`), so `data` must hold no −0.0 (it would become +0.0).
 pub fn add_ellipse(e: &Ellipse, spec: &GridSpec, data: &mut [f64], w: f64) -> u64 {
+    add_ellipse_in_rows(e, spec, 0..spec.ny, data, w)
+}
+
+/// [`add_ellipse`] in the grid rows `rows` only, `cells` holding those rows
+/// (from row `rows.start`): one band's part of an echo ([`band_shift`]).
+#[inline(always)]
+fn add_ellipse_in_rows(e: &Ellipse, spec: &GridSpec, rows: std::ops::Range<usize>, cells: &mut [f64], w: f64) -> u64 {
     let masks = span_masks(w);
     let nx = spec.nx;
     let mut n = 0u64;
-    for_each_entered_block(e, spec, |b| {
-        let mut base = b.j0 * nx;
+    let first_row = rows.start;
+    for_each_entered_block_in_rows(e, spec, rows, |b| {
+        let mut base = (b.j0 - first_row) * nx;
         for r in 0..b.len {
             for (lo, hi) in [(b.lo1[r], b.hi1[r]), (b.lo2[r], b.hi2[r])] {
                 if lo <= hi {
                     let len = (hi - lo + 1) as usize;
-                    add_span(data, base + lo as usize, len, w, &masks);
+                    add_span(cells, base + lo as usize, len, w, &masks);
                     n += len as u64;
                 }
             }

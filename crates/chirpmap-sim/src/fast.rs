@@ -627,9 +627,7 @@ mod tests {
             for k in 0..=200 {
                 let out = bounce_dir(dir, normal, rough, f64::from(k) / 200.0);
                 for &(c, r) in &circles[1..] {
-                    let w = c - p;
-                    let t = w.dot(out).max(0.0);
-                    let closest = (w - out * t).norm();
+                    let closest = ray_distance(p, out, c);
                     prop_assert!(closest > r, "u = {} meets ({:?}, {r}) at {closest}", f64::from(k) / 200.0, c);
                 }
             }
