@@ -70,7 +70,8 @@ fn plan(def: &SweepDef) -> Result<Plan, chirpmap_experiments::ExperimentError> {
 /// keeps the previous figure whole).
 fn finish(dir: &Path, plan: &Plan, summaries: &[chirpmap_experiments::summary::ConfigSummary]) -> Result<()> {
     let png = dir.join("summary.png");
-    let staged = dir.join(format!(".chirpmap-summary-{}.png", std::process::id()));
+    // A new file's name (never a user's file of the same name), drawn over.
+    let (staged, _) = chirpmap_experiments::runs::new_sibling(&png)?;
     let drawn = plot_summary(&staged, plan, summaries)
         .and_then(|()| std::fs::rename(&staged, &png).map_err(anyhow::Error::from))
         .with_context(|| format!("cannot write {}", png.display()));

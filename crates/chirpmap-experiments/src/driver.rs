@@ -4,8 +4,8 @@
 use crate::error::ExperimentError;
 use crate::runner::execute;
 use crate::runs::{
-    CUT_SHORT, RUNS_FILE, RunMetrics, RunRow, RunsFile, SHARD_FILE, SWEEP_FILE, read_rows, shard_file_is_cut,
-    sweep_file_is_cut, write_atomic, write_sorted,
+    CUT_SHORT, RUNS_FILE, RunMetrics, RunRow, RunsFile, SHARD_FILE, SWEEP_FILE, SweepLock, foreign_sweep_file,
+    read_rows, shard_file_is_cut, sweep_file_is_cut, write_atomic, write_sorted,
 };
 use crate::summary::{ConfigSummary, summarise, summary_csv, summary_md};
 use crate::sweep::{Job, Plan, Shard, SweepDef};
@@ -30,10 +30,7 @@ pub struct Outcome {
 pub fn write_summaries(dir: &Path, plan: &Plan, rows: &[RunRow]) -> Result<Vec<ConfigSummary>, ExperimentError> {
     let s = summarise(plan, rows);
     for (name, text) in [("summary.csv", summary_csv(plan, &s)), ("summary.md", summary_md(plan, &s))] {
-        let p = dir.join(name);
-        let tmp = dir.join(format!(".{name}.tmp"));
-        std::fs::write(&tmp, text).map_err(|e| ExperimentError::io(&tmp, e))?;
-        std::fs::rename(&tmp, &p).map_err(|e| ExperimentError::io(&p, e))?;
+        write_atomic(&dir.join(name), text.as_bytes())?;
     }
     Ok(s)
 }
@@ -126,6 +123,9 @@ fn check_merge_out(inputs: &[&Path], out: &Path, sweep_text: &str) -> Result<(),
         Ok(text) if text != sweep_text && sweep_file_is_cut(&text, sweep_text) => {
             refuse(&format!("holds a {SWEEP_FILE} that {CUT_SHORT}"))
         }
+        Ok(text) if text != sweep_text && foreign_sweep_file(&text).is_some() => {
+            Err(ExperimentError::file(&out.join(SWEEP_FILE), foreign_sweep_file(&text).unwrap_or_default()))
+        }
         Ok(text) if text != sweep_text => refuse("holds another sweep (its sweep.toml differs)"),
         Ok(_) => match std::fs::read_to_string(out.join(SHARD_FILE)) {
             Ok(shard) if shard == MERGED_SHARD => Ok(()),
@@ -190,10 +190,33 @@ pub fn merge(
             }
         }
     }
-    report.missing = plan.jobs().into_iter().filter(|j| !rows.contains_key(j)).collect();
     std::fs::create_dir_all(out).map_err(|e| ExperimentError::io(out, e))?;
-    // Checked again now that `out` exists (a symlink or a race could make it an input).
+    // Held to the end: a sweep still running in `out`, or another merge,
+    // must not write there meanwhile (two sweeps may not either).
+    let _lock = SweepLock::take(out)?;
+    // Checked again now that `out` exists and is locked (a symlink or a race
+    // could make it an input).
     check_merge_out(inputs, out, &text0)?;
+    // An earlier merge or a whole sweep of this same sweep in `out` keeps
+    // its runs (with their times) and gains the inputs' others: they were
+    // replaced by the inputs' alone, losing any run no input held.
+    let kept = out.join(RUNS_FILE);
+    if kept.exists() {
+        for r in read_rows(&kept, &plan)? {
+            match rows.get(&r.job) {
+                Some(input) if input.metrics != r.metrics => {
+                    return Err(ExperimentError::file(
+                        &kept,
+                        format!("holds run ({}) with results other than the inputs'", r.job),
+                    ));
+                }
+                _ => {
+                    rows.insert(r.job, r);
+                }
+            }
+        }
+    }
+    report.missing = plan.jobs().into_iter().filter(|j| !rows.contains_key(j)).collect();
     write_atomic(&out.join(SWEEP_FILE), text0.as_bytes())?;
     write_atomic(&out.join(SHARD_FILE), MERGED_SHARD.as_bytes())?;
     let rows: Vec<RunRow> = rows.into_values().collect();

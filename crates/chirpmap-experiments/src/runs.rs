@@ -244,9 +244,7 @@ pub fn write_sorted(path: &Path, plan: &Plan, rows: &[RunRow]) -> Result<(), Exp
     for r in sorted {
         buf.extend(csv_line(&row_record(plan, r)));
     }
-    let tmp = path.with_extension("csv.tmp");
-    std::fs::write(&tmp, buf).map_err(|e| ExperimentError::io(&tmp, e))?;
-    std::fs::rename(&tmp, path).map_err(|e| ExperimentError::io(path, e))
+    write_atomic(path, &buf)
 }
 
 /// An output directory's runs.csv opened for appending, with the rows it
@@ -325,27 +323,59 @@ pub const RUNS_FILE: &str = "runs.csv";
 /// left them empty, which later runs reported as another sweep or shard.
 pub(crate) const CUT_SHORT: &str = "is empty or cut short (a write was interrupted, e.g. by a full disk)";
 
-/// Whether a sweep.toml read back that differs from `expected` is no whole
-/// sweep definition (empty, cut short, a prefix of `expected` or damaged),
-/// rather than another sweep's.
+/// Whether a sweep.toml read back that differs from `expected` looks cut
+/// short (empty, a prefix of `expected`, or without its final newline),
+/// rather than another sweep's or a file chirpmap did not write.
 pub(crate) fn sweep_file_is_cut(text: &str, expected: &str) -> bool {
-    expected.starts_with(text)
-        || text.trim().is_empty()
-        || !text.ends_with('\n')
-        || SweepDef::from_toml_str(text).is_err()
+    expected.starts_with(text) || text.trim().is_empty() || !text.ends_with('\n')
 }
 
-/// Writes `path` whole or not at all (a hidden temporary file, then a
+/// Why a whole sweep.toml (not [`sweep_file_is_cut`]) is no sweep
+/// definition: a file of the user's, or one damaged; `None` for a sweep
+/// definition. Such a file is not chirpmap's to delete or overwrite: a
+/// user's own sweep.toml in `--out` was reported as cut short, with the
+/// advice to delete it.
+pub(crate) fn foreign_sweep_file(text: &str) -> Option<String> {
+    SweepDef::from_toml_str(text).err().map(|e| {
+        let e = e.to_string();
+        let first = e.lines().find(|l| !l.trim().is_empty()).unwrap_or("").trim().to_string();
+        format!("is no sweep definition chirpmap wrote ({first}): not ours to overwrite; use another --out directory")
+    })
+}
+
+/// Writes `path` whole or not at all (a new hidden file beside it, then a
 /// rename): a full disk must not leave an empty sweep.toml or shard.txt,
 /// which every later run took for another sweep's.
 pub(crate) fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), ExperimentError> {
-    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    let tmp = path.with_file_name(format!(".{name}.tmp"));
-    if let Err(e) = std::fs::write(&tmp, bytes) {
+    let (tmp, mut file) = new_sibling(path)?;
+    if let Err(e) = file.write_all(bytes) {
+        drop(file);
         let _ = std::fs::remove_file(&tmp);
         return Err(ExperimentError::io(&tmp, e));
     }
-    std::fs::rename(&tmp, path).map_err(|e| ExperimentError::io(path, e))
+    drop(file);
+    std::fs::rename(&tmp, path).map_err(|e| {
+        let _ = std::fs::remove_file(&tmp);
+        ExperimentError::io(path, e)
+    })
+}
+
+/// A new, empty hidden file in `path`'s directory, for writing `path` by a
+/// rename: created with `create_new` under a name no file there has, so
+/// that no file of the user's is written over. Fixed names
+/// (`runs.csv.tmp`, `.sweep.toml.tmp`) were: a user's file of that name
+/// was overwritten and then renamed onto runs.csv or sweep.toml.
+pub fn new_sibling(path: &Path) -> Result<(PathBuf, std::fs::File), ExperimentError> {
+    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let mut serial = 0u32;
+    loop {
+        let tmp = path.with_file_name(format!(".chirpmap-tmp-{}-{serial}-{name}", std::process::id()));
+        match std::fs::OpenOptions::new().write(true).create_new(true).open(&tmp) {
+            Ok(file) => return Ok((tmp, file)),
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists && serial < 1000 => serial += 1,
+            Err(e) => return Err(ExperimentError::io(&tmp, e)),
+        }
+    }
 }
 
 /// Whether a shard.txt read back is not the `I/N` line chirpmap writes.
@@ -384,6 +414,9 @@ impl RunsFile {
                     &sweep_path,
                     format!("{CUT_SHORT}, not a whole sweep definition; {what}"),
                 ));
+            }
+            Ok(existing) if existing != sweep_text && foreign_sweep_file(&existing).is_some() => {
+                return Err(ExperimentError::file(&sweep_path, foreign_sweep_file(&existing).unwrap_or_default()));
             }
             Ok(existing) if existing != sweep_text => {
                 return Err(ExperimentError::file(

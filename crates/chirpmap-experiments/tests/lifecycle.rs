@@ -468,3 +468,112 @@ fn a_busy_sweep_directory_is_refused_and_doubled_rows_resume() {
     let e = run_sweep(&plan, &dir, Shard::ALL, 1, fake, |_, _| {}).unwrap_err().to_string();
     assert!(e.contains("appears twice with different results"), "{e}");
 }
+
+/// Files named as sweeps once named their temporary files (`runs.csv.tmp`,
+/// `.sweep.toml.tmp`, ...) are a user's: a sweep and a merge leave them as
+/// they were. They were written over and then renamed onto runs.csv,
+/// sweep.toml, shard.txt and the summaries.
+#[test]
+fn files_named_like_old_temporaries_are_left_alone() {
+    let plan = SweepDef::from_toml_str(SWEEP).unwrap().plan(|_| Ok(())).unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let mine = ["runs.csv.tmp", ".sweep.toml.tmp", ".shard.txt.tmp", ".summary.csv.tmp", ".summary.md.tmp"];
+    let put = |d: &Path| {
+        for n in mine {
+            std::fs::write(d.join(n), format!("mine: {n}")).unwrap();
+        }
+    };
+    let names = |d: &Path| -> Vec<String> {
+        let mut v: Vec<String> =
+            std::fs::read_dir(d).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+        v.sort();
+        v
+    };
+    let mut want: Vec<String> = mine.iter().map(|s| s.to_string()).collect();
+    want.extend(["runs.csv", "shard.txt", "summary.csv", "summary.md", "sweep.toml"].map(String::from));
+    want.sort();
+    let d = tmp.path().join("s");
+    std::fs::create_dir(&d).unwrap();
+    put(&d);
+    assert_eq!(run_sweep(&plan, &d, Shard::ALL, 1, fake, |_, _| {}).unwrap().rows.len(), 42);
+    for n in mine {
+        assert_eq!(std::fs::read_to_string(d.join(n)).unwrap(), format!("mine: {n}"));
+    }
+    assert_eq!(names(&d), want, "nothing left beside the sweep's own files");
+    // A merge into a directory of this sweep (its earlier merge) alike.
+    let m = tmp.path().join("m");
+    merge(&[d.as_path()], &m, |d| d.plan(|_| Ok(()))).unwrap();
+    put(&m);
+    merge(&[d.as_path()], &m, |d| d.plan(|_| Ok(()))).unwrap();
+    for n in mine {
+        assert_eq!(std::fs::read_to_string(m.join(n)).unwrap(), format!("mine: {n}"));
+    }
+    assert_eq!(names(&m), want);
+}
+
+/// A whole sweep.toml in `--out` that is no sweep definition is a user's
+/// file (or a damaged one), not one chirpmap cut short: refused as not
+/// ours, without the cut-short advice to delete it, and left as it was.
+#[test]
+fn a_users_sweep_toml_is_not_called_cut_short() {
+    let plan = SweepDef::from_toml_str(SWEEP).unwrap().plan(|_| Ok(())).unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let s0 = tmp.path().join("s0");
+    run_sweep(&plan, &s0, Shard::ALL, 1, fake, |_, _| {}).unwrap();
+    for text in ["name = \"mine\"\nruns = 3\n[base]\n", "hello\n"] {
+        let d = tmp.path().join("user");
+        std::fs::create_dir_all(&d).unwrap();
+        std::fs::write(d.join("sweep.toml"), text).unwrap();
+        let e = run_sweep(&plan, &d, Shard::ALL, 1, fake, |_, _| {}).unwrap_err().to_string();
+        assert!(e.contains("sweep.toml: is no sweep definition chirpmap wrote") && e.contains("not ours"), "{e}");
+        assert!(!e.contains("delete") && !e.contains('\n'), "{e}");
+        let e = merge(&[s0.as_path()], &d, |d| d.plan(|_| Ok(()))).unwrap_err().to_string();
+        assert!(e.contains("is no sweep definition chirpmap wrote"), "{e}");
+        assert_eq!(std::fs::read_to_string(d.join("sweep.toml")).unwrap(), text);
+        assert_eq!(std::fs::read_dir(&d).unwrap().count(), 1, "nothing written beside it");
+    }
+}
+
+/// Merging into an earlier merge (or a whole sweep) of the same sweep adds
+/// the inputs' runs to the runs already there, which keep their times: it
+/// replaced them with the inputs' alone, losing every run no input held. A
+/// run there with other results than an input's is refused, and a sweep
+/// writing into `--out` makes a merge wait its turn (refused, as a second
+/// sweep is).
+#[test]
+fn merging_into_an_earlier_merge_keeps_its_runs() {
+    let def = SweepDef::from_toml_str(SWEEP).unwrap();
+    let plan = def.plan(|_| Ok(())).unwrap();
+    let plan_of = |d: &SweepDef| d.plan(|_| Ok(()));
+    let tmp = tempfile::tempdir().unwrap();
+    let shards: Vec<_> = (0..2).map(|i| tmp.path().join(format!("s{i}"))).collect();
+    for (i, d) in shards.iter().enumerate() {
+        run_sweep(&plan, d, Shard { index: i, count: 2 }, 1, fake, |_, _| {}).unwrap();
+    }
+    let full = tmp.path().join("full");
+    run_sweep(&plan, &full, Shard::ALL, 1, fake, |_, _| {}).unwrap();
+    let m = tmp.path().join("m");
+    assert_eq!(merge(&[shards[0].as_path()], &m, plan_of).unwrap().0.rows.len(), 21);
+    let first = std::fs::read_to_string(m.join("runs.csv")).unwrap();
+    let (o, report) = merge(&[shards[1].as_path()], &m, plan_of).unwrap();
+    assert_eq!((o.rows.len(), report.missing.len(), report.duplicated.len()), (42, 0, 0));
+    assert_eq!(strip_elapsed(&m.join("runs.csv")), strip_elapsed(&full.join("runs.csv")));
+    let now = std::fs::read_to_string(m.join("runs.csv")).unwrap();
+    assert!(first.lines().skip(1).all(|l| now.lines().any(|n| n == l)), "the first merge's rows, times and all");
+    // Into the whole sweep: its rows and times stay.
+    let before = std::fs::read_to_string(full.join("runs.csv")).unwrap();
+    merge(&[shards[0].as_path(), shards[1].as_path()], &full, plan_of).unwrap();
+    assert_eq!(std::fs::read_to_string(full.join("runs.csv")).unwrap(), before);
+    // A run of `m` with other results than an input's.
+    let mut lines: Vec<String> = now.lines().map(String::from).collect();
+    lines[1] = lines[1].replacen(",0.", ",0.9", 1);
+    std::fs::write(m.join("runs.csv"), lines.join("\n") + "\n").unwrap();
+    let e = merge(&[shards[0].as_path(), shards[1].as_path()], &m, plan_of).unwrap_err().to_string();
+    assert!(e.contains("with results other than the inputs'"), "{e}");
+    // A sweep holding `full`.
+    let held = chirpmap_experiments::RunsFile::open(&full, &plan, Shard::ALL).unwrap();
+    let e = merge(&[shards[0].as_path()], &full, plan_of).unwrap_err().to_string();
+    assert!(e.contains("is locked"), "{e}");
+    drop(held);
+    merge(&[shards[0].as_path()], &full, plan_of).unwrap();
+}
