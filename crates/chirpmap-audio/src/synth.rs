@@ -194,6 +194,7 @@ impl SynthConfig {
 /// errors quote a short excerpt of the offending line, once.
 pub fn parse_scene_with_synth(text: &str) -> Result<(Scene, SynthConfig), AudioError> {
     let invalid = |m: String| AudioError::InvalidParam { field: "scene", reason: m };
+    chirpmap_core::error::check_toml_values(text).map_err(invalid)?;
     let mut table: toml::Table =
         text.parse().map_err(|e: toml::de::Error| invalid(chirpmap_core::error::toml_error(text, &e)))?;
     let split = if table.contains_key("synth") { split_synth_lines(text) } else { None };

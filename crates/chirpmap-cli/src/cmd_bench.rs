@@ -29,8 +29,14 @@ pub struct BenchArgs {
 }
 
 fn run_doppler(args: &BenchArgs) -> Result<()> {
-    if let Some(s) = args.speeds.iter().find(|s| !(s.is_finite() && **s > 0.0 && **s <= 30.0)) {
-        bail!("--speeds: {s} m/s is outside (0, 30] (a listener of the doppler suite walks past the wall)");
+    if let Some(s) = args.speeds.iter().find(|s| !(s.is_finite() && **s >= 0.01 && **s <= 30.0)) {
+        bail!(
+            "--speeds: {} m/s is outside [0.01, 30] (a listener of the doppler suite walks past the wall)",
+            chirpmap_core::error::Num(*s)
+        );
+    }
+    if let Some((k, s)) = args.speeds.iter().enumerate().find(|(k, s)| args.speeds[..*k].contains(s)) {
+        bail!("--speeds: {} m/s is given twice (speed {} of the list)", chirpmap_core::error::Num(*s), k + 1);
     }
     let mut out = Staged::dir(&args.out, "benchmark doppler", &["doppler.csv", "doppler.md"], &[])?;
     let started = Instant::now();

@@ -258,6 +258,7 @@ fn echoes_from_wav(
     let [sx, sy] = args.speaker.context("--wav needs --speaker")?;
     let listener_id = u32::try_from(args.chirp.channel).context("--channel is too large")?;
     let poses = crate::poses_csv::read_poses(poses_path, listener_id)?;
+    poses.check_speed(chirp.speed_of_sound_mps)?;
     // The doppler method ranges any sweep through its inverse; the prepared
     // channel does not depend on the shape (only its template, unused there).
     let linear = ChirpSpec { kind: chirpmap::core::scene::SweepKind::Linear, ..chirp };

@@ -115,6 +115,7 @@ pub fn read_echoes(path: &Path) -> Result<Vec<Echo>> {
 
 /// Parses an echoes CSV held in memory; `name` is used in messages.
 pub fn parse_echoes(bytes: &[u8], name: &str) -> Result<Vec<Echo>> {
+    crate::files::check_csv_lines(bytes, name)?;
     let lines = LineIndex::new(bytes);
     check_quotes_closed(bytes, &lines, name)?;
     let mut rdr = csv::ReaderBuilder::new().trim(csv::Trim::All).from_reader(bytes);

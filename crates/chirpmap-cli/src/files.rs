@@ -9,6 +9,20 @@ use std::path::Path;
 pub const MAX_TOML_BYTES: u64 = 64 << 20;
 /// Largest echoes or poses CSV read: 10⁷ rows of ~60 bytes.
 pub const MAX_CSV_BYTES: u64 = 1 << 30;
+/// Most lines an echoes or poses CSV may have (rows, the header and blank
+/// lines): short rows under [`MAX_CSV_BYTES`] were 10⁸ echoes, 9.6 GB of
+/// memory before the first bad value was found.
+pub const MAX_CSV_LINES: usize = 10_000_001;
+
+/// Refuses a CSV held in `bytes` with more than [`MAX_CSV_LINES`] lines,
+/// before anything is parsed; `name` is used in the message.
+pub fn check_csv_lines(bytes: &[u8], name: &str) -> Result<()> {
+    let n = bytes.iter().filter(|&&b| b == b'\n').count() + usize::from(bytes.last().is_some_and(|&b| b != b'\n'));
+    if n > MAX_CSV_LINES {
+        return Err(anyhow!("{name}: {n} lines, more than the {MAX_CSV_LINES} read (10 000 000 rows and a header)"));
+    }
+    Ok(())
+}
 
 /// Reads a whole input file of at most `cap` bytes; `what` names it in
 /// errors. A larger regular file is refused before it is read, and an
@@ -42,6 +56,24 @@ pub fn read_text_input(path: &Path, what: &str, cap: u64) -> Result<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Line counts are capped before parsing; a last line without its
+    /// newline counts.
+    #[test]
+    fn csv_lines_beyond_the_cap_are_refused_before_parsing() {
+        let mut bytes = vec![b'\n'; MAX_CSV_LINES];
+        check_csv_lines(&bytes, "e.csv").expect("at the cap");
+        bytes.push(b'x');
+        let e = check_csv_lines(&bytes, "e.csv").expect_err("one more").to_string();
+        assert_eq!(
+            e,
+            format!(
+                "e.csv: {} lines, more than the {MAX_CSV_LINES} read (10 000 000 rows and a header)",
+                MAX_CSV_LINES + 1
+            )
+        );
+        check_csv_lines(b"", "e.csv").expect("empty");
+    }
 
     #[test]
     fn inputs_beyond_the_cap_are_refused_even_endless_ones() {

@@ -563,6 +563,14 @@ impl StagedFiles {
             if dirs[k].1.contains(&name) {
                 bail!("{} is given twice as an output", p.display());
             }
+            // chirpmap's own bookkeeping there: `--poses DIR/.chirpmap-files`
+            // wrote the poses and then the manifest over them.
+            if [DIR_MANIFEST, FILE_MANIFEST, DIR_LOCK].contains(&name.as_str()) || name.starts_with(STAGING_PREFIX) {
+                bail!(
+                    "{}: chirpmap keeps this name for its own records of what it wrote there; give the output another name",
+                    p.display()
+                );
+            }
             dirs[k].1.push(name.clone());
             index.push((p.to_path_buf(), k, name));
         }
@@ -646,6 +654,21 @@ mod tests {
         assert!(err.to_string().contains("would replace the input"), "{err}");
         assert_eq!(std::fs::read_to_string(&input).expect("read"), "mine");
         assert_eq!(names(t.path()), vec!["summary.json"]);
+    }
+
+    /// Single-file outputs named as chirpmap's own records (its manifests,
+    /// lock, staging folders) are refused before anything is written: the
+    /// manifest was written over such an output after it.
+    #[test]
+    fn outputs_named_as_chirpmaps_own_records_are_refused() {
+        let t = tempfile::tempdir().expect("tmp");
+        let wav = t.path().join("rec.wav");
+        for name in [FILE_MANIFEST, DIR_MANIFEST, DIR_LOCK, &format!("{STAGING_PREFIX}7")] {
+            let p = t.path().join(name);
+            let err = StagedFiles::new(&[&wav, &p], &[]).expect_err("reserved");
+            assert!(err.to_string().contains("keeps this name for its own records"), "{err}");
+        }
+        assert!(names(t.path()).is_empty(), "nothing written");
     }
 
     #[test]

@@ -19,6 +19,9 @@ use std::path::Path;
 pub struct Poses {
     track: PoseTrack,
     name: String,
+    /// The fastest step between consecutive poses: (speed in m/s, its
+    /// line, the line before it).
+    fastest: Option<(f64, u64, u64)>,
 }
 
 impl std::ops::Deref for Poses {
@@ -34,6 +37,24 @@ impl std::ops::Deref for Poses {
 pub const MAX_SPAN_RATIO: f64 = 100.0;
 
 impl Poses {
+    /// Refuses poses between which the listener moves at or above
+    /// `speed_of_sound_mps`, naming the line: echoes cannot be ranged from
+    /// such a walk (a scene refuses such a listener alike), and such poses
+    /// are a unit or column mix-up (a map was made of a listener jumping
+    /// 30 m every 10 ms, and took 66 times as long).
+    pub fn check_speed(&self, speed_of_sound_mps: f64) -> Result<()> {
+        match self.fastest {
+            Some((v, line, prev)) if v >= speed_of_sound_mps => bail!(
+                "{}:{line}: the listener moves at {} m/s from the pose of line {prev}, at least the speed of sound \
+                 ({} m/s): are the times in seconds and the positions in metres?",
+                self.name,
+                Num(v),
+                Num(speed_of_sound_mps)
+            ),
+            _ => Ok(()),
+        }
+    }
+
     /// Checks the poses' times against a recording of `recording_s` seconds:
     /// they must overlap `[0, recording_s]`, and their span must not exceed
     /// [`MAX_SPAN_RATIO`] × the recording (times in milliseconds against a
@@ -73,6 +94,7 @@ pub fn read_poses(path: &Path, listener: u32) -> Result<Poses> {
 
 /// Parses a poses CSV held in memory; `name` is used in messages.
 pub fn parse_poses(bytes: &[u8], name: &str, listener: u32) -> Result<Poses> {
+    crate::files::check_csv_lines(bytes, name)?;
     let lines = LineIndex::new(bytes);
     check_quotes_closed(bytes, &lines, name)?;
     let mut rdr = csv::ReaderBuilder::new().trim(csv::Trim::All).flexible(true).from_reader(bytes);
@@ -94,6 +116,7 @@ pub fn parse_poses(bytes: &[u8], name: &str, listener: u32) -> Result<Poses> {
     let cl = col("listener");
     // (t, position, line) in file order.
     let mut rows: Vec<(f64, Point, u64)> = Vec::new();
+    let mut fastest: Option<(f64, u64, u64)> = None;
     for rec in rdr.byte_records() {
         let rec = rec.map_err(|e| {
             let line = e.position().map_or(0, |p| lines.line_of(p.byte()));
@@ -150,6 +173,10 @@ pub fn parse_poses(bytes: &[u8], name: &str, listener: u32) -> Result<Poses> {
                 }
                 continue;
             }
+            let v = p.dist(p_prev) / (t - t_prev);
+            if fastest.is_none_or(|(f, _, _)| v > f) {
+                fastest = Some((v, line, line_prev));
+            }
         }
         rows.push((t, p, line));
     }
@@ -158,7 +185,7 @@ pub fn parse_poses(bytes: &[u8], name: &str, listener: u32) -> Result<Poses> {
     }
     let track =
         PoseTrack::new(rows.into_iter().map(|(t, p, _)| (t, p)).collect()).map_err(|e| anyhow!("{name}: {e}"))?;
-    Ok(Poses { track, name: name.to_string() })
+    Ok(Poses { track, name: name.to_string(), fastest })
 }
 
 /// The `csv` crate's message without its position (we give the line).
@@ -192,6 +219,20 @@ mod tests {
         assert_eq!(p.at(1.0), Some(Point::new(2.0, 0.0)));
         // A repeated identical pose is kept once.
         assert_eq!(parse("t,x,y\n0,0,0\n0,0,0\n1,1,1\n").unwrap().rows().len(), 2);
+    }
+
+    /// Poses implying a listener at or above the speed of sound (a jump of
+    /// 30 m in 10 ms) are refused naming the line; a walk passes, and so
+    /// does a fast step where sound is faster still (water).
+    #[test]
+    fn a_listener_faster_than_sound_is_refused_naming_the_line() {
+        let p = parse("t,x,y\n0,0,0\n0.01,0.01,0\n0.02,30,0\n0.03,30.01,0\n").unwrap();
+        let e = p.check_speed(343.0).unwrap_err().to_string();
+        assert!(e.starts_with("p.csv:4: the listener moves at 2999 m/s from the pose of line 3"), "{e}");
+        assert!(!e.contains('\n'), "{e}");
+        p.check_speed(3000.0).unwrap();
+        parse("t,x,y\n0,0,0\n1,1.4,0\n2,2.8,0\n").unwrap().check_speed(343.0).unwrap();
+        parse("t,x,y\n0,0,0\n").unwrap().check_speed(343.0).unwrap();
     }
 
     #[test]

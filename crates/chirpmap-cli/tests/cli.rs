@@ -446,3 +446,34 @@ fn map_scores_against_a_scene_with_a_still_listener() {
     assert!(summary["score_obstacle"].as_f64().is_some_and(|s| s > 0.0), "{summary}");
     std::fs::remove_dir_all(&out).ok();
 }
+
+/// Errors found by a reliability review (session 20) stay on one line, with
+/// numbers as a person writes them, and absurd or repeated benchmark speeds
+/// are refused before any work.
+#[test]
+fn review_errors_are_one_short_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = |n: &str| dir.path().join(n).to_str().unwrap().to_string();
+    let one_line = |o: &Output| -> String {
+        assert!(!o.status.success());
+        let e = String::from_utf8_lossy(&o.stderr).into_owned();
+        assert_eq!(e.trim_end().lines().count(), 1, "{e}");
+        assert!(e.len() < 400, "{e}");
+        e
+    };
+    // A sweep value of the wrong type: the key was on a second line.
+    let sweep = d("s.toml");
+    std::fs::write(
+        &sweep,
+        "name = \"x\"\nruns = 1\nseed = 1\n[[params]]\nname = \"d\"\npath = \"particles.doppler\"\nvalues = [true, \"yes\"]\n",
+    )
+    .unwrap();
+    let e = one_line(&run(&["sweep", &sweep, "--out", &d("so")]));
+    assert!(e.contains("expected a boolean in `particles.doppler`"), "{e}");
+    // Speeds of the doppler suite.
+    let e = one_line(&run(&["benchmark", "doppler", "--speeds", "1e-300", "--out", &d("b1")]));
+    assert!(e.contains("1e-300 m/s is outside [0.01, 30]"), "{e}");
+    let e = one_line(&run(&["benchmark", "doppler", "--speeds", "1,2,1", "--out", &d("b2")]));
+    assert!(e.contains("1 m/s is given twice (speed 3 of the list)"), "{e}");
+    assert!(!dir.path().join("b1").exists() && !dir.path().join("b2").exists());
+}

@@ -150,6 +150,28 @@ pub fn short_message(message: &str) -> String {
     }
 }
 
+/// Most values (array elements, keys, tables) a scene or sweep TOML may
+/// hold: a scene of [`crate::scene::MAX_OBSTACLES`] polygons of
+/// [`crate::scene::MAX_POLYGON_VERTICES`] vertices has ~3·10⁶. Parsed
+/// TOML takes ~200 bytes a value (a 66 MB array of `1,` took 7 GB before
+/// its first check), so the values are counted before parsing.
+pub const MAX_TOML_VALUES: usize = 4_000_000;
+
+/// Refuses a TOML text with more than [`MAX_TOML_VALUES`] values, counted
+/// from above by their separators (`,` `=` `[` `{` and line ends), before it
+/// is parsed; the error names the count and the memory it would take.
+pub fn check_toml_values(text: &str) -> Result<(), String> {
+    let n = text.bytes().filter(|b| matches!(b, b',' | b'=' | b'[' | b'{' | b'\n')).count();
+    if n > MAX_TOML_VALUES {
+        return Err(format!(
+            "holds up to {n} values (separators), more than the {MAX_TOML_VALUES} a scene or sweep may have \
+             (parsing would take ~{} MB)",
+            n / 5_000
+        ));
+    }
+    Ok(())
+}
+
 /// A one-line description of a TOML error in `text`: `line L, column C: what
 /// (near `excerpt`)`. The `toml` crate's own `Display` quotes the whole
 /// offending line (and the message may repeat the value), so a 1 MB value
@@ -171,6 +193,22 @@ pub fn toml_error(text: &str, e: &toml::de::Error) -> String {
 #[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
+
+    /// A TOML of more values than a scene or sweep may hold is refused
+    /// before it is parsed (a 66 MB array took 7 GB), by the scene's and
+    /// the sweep's readers alike; the largest scene the schema allows is not.
+    #[test]
+    fn toml_of_too_many_values_is_refused_before_parsing() {
+        let huge = format!("[world]\nbounds = [{}1]\n", "1,".repeat(MAX_TOML_VALUES));
+        let e = check_toml_values(&huge).unwrap_err();
+        assert!(e.starts_with(&format!("holds up to {} values", MAX_TOML_VALUES + 5)), "{e}");
+        let e = crate::Scene::from_toml_str(&huge).unwrap_err().to_string();
+        assert!(e.contains("more than the 4000000 a scene or sweep may have") && !e.contains('\n'), "{e}");
+        // 1000 polygons of 1000 vertices.
+        let ring: String = (0..crate::scene::MAX_POLYGON_VERTICES).map(|k| format!("[{k}.5, 1.25],")).collect();
+        let obstacle = format!("[[obstacles]]\nvertices = [{ring}]\n");
+        check_toml_values(&obstacle.repeat(crate::scene::MAX_OBSTACLES)).unwrap();
+    }
 
     #[test]
     fn numbers_print_as_a_person_writes_them() {

@@ -460,6 +460,7 @@ impl Scene {
     /// short excerpt of the offending line ([`crate::error::toml_error`]).
     /// Parsing does not validate values: call [`Scene::validate`].
     pub fn from_toml_str(text: &str) -> Result<Self, CoreError> {
+        crate::error::check_toml_values(text).map_err(CoreError::InvalidScene)?;
         toml::from_str(text).map_err(|e| CoreError::InvalidScene(toml_error(text, &e)))
     }
 

@@ -148,6 +148,7 @@ impl SweepDef {
     /// Parses a sweep file; errors quote a short excerpt of the offending
     /// line ([`chirpmap_core::error::toml_error`]).
     pub fn from_toml_str(text: &str) -> Result<Self, ExperimentError> {
+        chirpmap_core::error::check_toml_values(text).map_err(ExperimentError::InvalidSweep)?;
         toml::from_str(text).map_err(|e| ExperimentError::InvalidSweep(chirpmap_core::error::toml_error(text, &e)))
     }
 
@@ -222,7 +223,12 @@ impl SweepDef {
                 set_path(&mut value, &p.path, &p.values[c])
                     .map_err(|m| err(format!("parameter {:?} (path {:?}): {m}", p.name, p.path)))?;
             }
-            let mut scene: Scene = value.try_into().map_err(|e| err(format!("configuration {index}: {e}")))?;
+            // The `toml` crate puts the key on a line of its own: one line.
+            let one_line = |e: toml::de::Error| {
+                chirpmap_core::error::short_message(&e.to_string().split_whitespace().collect::<Vec<_>>().join(" "))
+            };
+            let mut scene: Scene =
+                value.try_into().map_err(|e| err(format!("configuration {index}: {}", one_line(e))))?;
             scene.seed = self.seed;
             let labels: Vec<String> = self.params.iter().zip(&choice).map(|(p, &c)| p.label(c)).collect();
             scene.validate().map_err(|e| err(format!("configuration {index} ({}): {e}", labels.join(", "))))?;

@@ -136,7 +136,7 @@ impl RoomGeometry {
         {
             return Err(Error::Field {
                 field: "floor_z",
-                reason: format!("{f} m is not below the speaker ({zs} m) and the mic ({zm} m)"),
+                reason: format!("{} m is not below the speaker ({} m) and the mic ({} m)", Num(f), Num(zs), Num(zm)),
             });
         }
         if let Some(c) = self.ceiling_z_m
@@ -144,7 +144,7 @@ impl RoomGeometry {
         {
             return Err(Error::Field {
                 field: "ceiling_z",
-                reason: format!("{c} m is not above the speaker ({zs} m) and the mic ({zm} m)"),
+                reason: format!("{} m is not above the speaker ({} m) and the mic ({} m)", Num(c), Num(zs), Num(zm)),
             });
         }
         Ok(())
@@ -741,6 +741,18 @@ mod tests {
             floor_z_m: Some(0.0),
             ceiling_z_m: Some(3.0),
         }
+    }
+
+    /// A floor or ceiling on the wrong side of the speaker and mic is named
+    /// with its height as a person writes it (1e300 printed 301 digits).
+    #[test]
+    fn a_floor_or_ceiling_on_the_wrong_side_is_refused_in_short() {
+        let g = RoomGeometry { floor_z_m: Some(1e300), ..geom3(1.0, 1.25) };
+        let e = g.validate().unwrap_err().to_string();
+        assert!(e.contains("1e300 m is not below the speaker (1 m) and the mic (1.25 m)"), "{e}");
+        let g = RoomGeometry { ceiling_z_m: Some(-1e300), ..geom3(1.0, 1.25) };
+        let e = g.validate().unwrap_err().to_string();
+        assert!(e.contains("-1e300 m is not above"), "{e}");
     }
 
     #[test]
