@@ -14,10 +14,15 @@ pub const MAX_CSV_BYTES: u64 = 1 << 30;
 /// memory before the first bad value was found.
 pub const MAX_CSV_LINES: usize = 10_000_001;
 
-/// Refuses a CSV held in `bytes` with more than [`MAX_CSV_LINES`] lines,
-/// before anything is parsed; `name` is used in the message.
+/// Refuses a CSV held in `bytes` with more than [`MAX_CSV_LINES`] lines
+/// (ended by LF, CRLF or a lone CR, as the readers accept), before anything
+/// is parsed; `name` is used in the message.
 pub fn check_csv_lines(bytes: &[u8], name: &str) -> Result<()> {
-    let n = bytes.iter().filter(|&&b| b == b'\n').count() + usize::from(bytes.last().is_some_and(|&b| b != b'\n'));
+    let count = |c: u8| bytes.iter().filter(|&&b| b == c).count();
+    let (lf, cr) = (count(b'\n'), count(b'\r'));
+    // A CRLF is one line end; the pairs are looked for only when a CR is there.
+    let crlf = if cr == 0 { 0 } else { bytes.windows(2).filter(|w| w == b"\r\n").count() };
+    let n = lf + cr - crlf + usize::from(bytes.last().is_some_and(|&b| b != b'\n' && b != b'\r'));
     if n > MAX_CSV_LINES {
         return Err(anyhow!("{name}: {n} lines, more than the {MAX_CSV_LINES} read (10 000 000 rows and a header)"));
     }
@@ -73,6 +78,13 @@ mod tests {
             )
         );
         check_csv_lines(b"", "e.csv").expect("empty");
+        // Lone CRs end lines too; CRLF is one end.
+        let mut cr = vec![b'\r'; MAX_CSV_LINES];
+        check_csv_lines(&cr, "e.csv").expect("at the cap");
+        cr.push(b'\r');
+        assert!(check_csv_lines(&cr, "e.csv").is_err());
+        let crlf = b"\r\n".repeat(MAX_CSV_LINES);
+        check_csv_lines(&crlf, "e.csv").expect("CRLF counts once");
     }
 
     #[test]
