@@ -137,6 +137,8 @@ pub fn map_summary(map: &MapResult, eval: Option<&Evaluation>) -> Value {
 pub fn provenance() -> Value {
     json!({
         "chirpmap_version": env!("CARGO_PKG_VERSION"),
-        "command_line": std::env::args().collect::<Vec<_>>(),
+        // `args_os`: `args` panics on an argument that is not UTF-8 (a file
+        // name such as `sc\xff.toml`); such bytes are recorded as U+FFFD.
+        "command_line": std::env::args_os().map(|a| a.to_string_lossy().into_owned()).collect::<Vec<_>>(),
     })
 }

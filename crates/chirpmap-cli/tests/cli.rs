@@ -477,3 +477,22 @@ fn review_errors_are_one_short_line() {
     assert!(e.contains("1 m/s is given twice (speed 3 of the list)"), "{e}");
     assert!(!dir.path().join("b1").exists() && !dir.path().join("b2").exists());
 }
+
+/// A file name that is not UTF-8 is an ordinary input and output name: the
+/// summary's command line recorded `std::env::args()`, which panicked on it
+/// (exit 101; session 20's review of the Python package found it).
+#[cfg(unix)]
+#[test]
+fn a_file_name_that_is_not_utf8_is_no_panic() {
+    use std::os::unix::ffi::OsStrExt;
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join(std::ffi::OsStr::from_bytes(b"sc\xff.toml"));
+    std::fs::write(&scene, "[particles]\nper_tick = 360\n").unwrap();
+    let out = dir.path().join(std::ffi::OsStr::from_bytes(b"o\xffx"));
+    let o = bin().arg("--no-progress").arg("simulate").arg(&scene).arg("--out").arg(&out).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let line: Vec<&str> = summary["run"]["command_line"].as_array().unwrap().iter().filter_map(|v| v.as_str()).collect();
+    assert!(line.last().is_some_and(|a| a.ends_with("o\u{fffd}x")), "{line:?}");
+}
