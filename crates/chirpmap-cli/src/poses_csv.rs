@@ -31,11 +31,6 @@ impl std::ops::Deref for Poses {
     }
 }
 
-/// The largest ratio of the poses' span to the recording's length accepted.
-/// Poses may outlast a recording (a log started earlier), but times in
-/// milliseconds against a recording in seconds give a ratio near 1000.
-pub const MAX_SPAN_RATIO: f64 = 100.0;
-
 impl Poses {
     /// Refuses poses between which the listener moves at or above
     /// `speed_of_sound_mps`, naming the line: echoes cannot be ranged from
@@ -55,34 +50,10 @@ impl Poses {
         }
     }
 
-    /// Checks the poses' times against a recording of `recording_s` seconds:
-    /// they must overlap `[0, recording_s]`, and their span must not exceed
-    /// [`MAX_SPAN_RATIO`] × the recording (times in milliseconds against a
-    /// recording in seconds are refused instead of silently mapping nothing).
+    /// Checks the poses' times against a recording of `recording_s` seconds
+    /// ([`PoseTrack::check_span`]), naming the file.
     pub fn check_span(&self, recording_s: f64) -> Result<()> {
-        let (t0, t1) = self.track.span();
-        let name = &self.name;
-        if !(recording_s.is_finite() && recording_s > 0.0) {
-            bail!("{name}: the recording's length must be finite and > 0 s, got {}", Num(recording_s));
-        }
-        if t0 > recording_s || t1 < 0.0 {
-            bail!(
-                "{name}: the poses span {}–{} s but the recording lasts {} s: they do not overlap (are the times in \
-                 seconds from the start of the recording?)",
-                Num(t0),
-                Num(t1),
-                Num(recording_s)
-            );
-        }
-        if t1 - t0 > MAX_SPAN_RATIO * recording_s {
-            bail!(
-                "{name}: the poses span {} s, more than {MAX_SPAN_RATIO} times the {} s recording: are the times in \
-                 milliseconds? Poses must be in seconds",
-                Num(t1 - t0),
-                Num(recording_s)
-            );
-        }
-        Ok(())
+        self.track.check_span(recording_s).map_err(|e| anyhow!("{}: {e}", self.name))
     }
 }
 

@@ -493,6 +493,7 @@ fn a_file_name_that_is_not_utf8_is_no_panic() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let summary: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
-    let line: Vec<&str> = summary["run"]["command_line"].as_array().unwrap().iter().filter_map(|v| v.as_str()).collect();
+    let line: Vec<&str> =
+        summary["run"]["command_line"].as_array().unwrap().iter().filter_map(|v| v.as_str()).collect();
     assert!(line.last().is_some_and(|a| a.ends_with("o\u{fffd}x")), "{line:?}");
 }

@@ -147,10 +147,14 @@ pub fn load_scene(src: SceneSource<'_>) -> Result<(Scene, SynthConfig, String), 
     match src {
         SceneSource::Default => Ok((Scene::default(), SynthConfig::default(), "default scene".into())),
         SceneSource::Toml(text) => {
+            check_scene_size(text, "scene (TOML text)")?;
             let (s, c) = chirpmap::parse_scene(text).map_err(|e| format!("scene: {}", error_text(&e)))?;
             Ok((s, c, "scene".into()))
         }
         SceneSource::Json(json) => {
+            // Before the conversions (JSON, a TOML table, TOML text), which
+            // took 3 GB for a dict of a million obstacles.
+            check_scene_size(json, "scene dict (as JSON)")?;
             let table: toml::Table =
                 serde_json::from_str(json).map_err(|e| format!("scene dict: not a TOML table: {e}"))?;
             let text = toml::to_string(&table).map_err(|e| format!("scene dict: {e}"))?;
@@ -160,7 +164,12 @@ pub fn load_scene(src: SceneSource<'_>) -> Result<(Scene, SynthConfig, String), 
         SceneSource::Path(path) => {
             // Capped as the CLI caps it: an endless stream (`/dev/zero`) or a
             // huge file is refused instead of read until memory runs out.
-            const MAX_SCENE_BYTES: u64 = 64 << 20;
+            // A FIFO blocks `open` until a writer comes, and a call cannot
+            // be interrupted (the review of session 20 found one hanging).
+            #[cfg(unix)]
+            if std::fs::metadata(path).is_ok_and(|m| std::os::unix::fs::FileTypeExt::is_fifo(&m.file_type())) {
+                return Err(format!("scene {path} is a FIFO (named pipe): give a scene file or the scene's text"));
+            }
             let mut text = String::new();
             std::fs::File::open(path)
                 .and_then(|f| {
@@ -174,6 +183,18 @@ pub fn load_scene(src: SceneSource<'_>) -> Result<(Scene, SynthConfig, String), 
             Ok((s, c, path.to_string()))
         }
     }
+}
+
+/// Largest scene read, as text, a dict's JSON or a file: the CLI's cap.
+const MAX_SCENE_BYTES: u64 = 64 << 20;
+
+/// Refuses scene text (TOML, or a dict's JSON) beyond the CLI's size cap or
+/// with more values than a scene may have, before it is parsed.
+fn check_scene_size(text: &str, what: &str) -> Result<(), String> {
+    if text.len() as u64 > MAX_SCENE_BYTES {
+        return Err(format!("{what} is too large: {} bytes (the limit is {MAX_SCENE_BYTES} bytes)", text.len()));
+    }
+    chirpmap::core::error::check_toml_values(text).map_err(|e| format!("{what}: {e}"))
 }
 
 /// Algorithm 1's parameters (and the mapper) from the Python keywords; the

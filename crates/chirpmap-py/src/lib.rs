@@ -31,6 +31,21 @@ fn value_error(msg: impl Into<String>) -> PyErr {
     PyValueError::new_err(msg.into())
 }
 
+/// Refuses a sample that is not finite or beyond ±10⁶ × full scale, naming
+/// `what` and its index, as the CLI's WAV reader does: such a sample gave
+/// "no chirp found" (a float64 beyond float32's range arrives as inf).
+fn check_samples(x: &[f32], what: &str) -> PyResult<()> {
+    let bad = x.iter().position(|v| !(v.is_finite() && f64::from(v.abs()) <= chirpmap::audio::error::MAX_FLOAT_SAMPLE));
+    match bad {
+        None => Ok(()),
+        Some(i) => Err(value_error(format!(
+            "{what}[{i}] is {}: samples must be finite and within ±{} (a float64 beyond float32's range becomes inf)",
+            chirpmap::core::error::Num(f64::from(x[i])),
+            chirpmap::core::error::Num(chirpmap::audio::error::MAX_FLOAT_SAMPLE)
+        ))),
+    }
+}
+
 fn scene_source<'a>(kind: &str, payload: &'a str) -> PyResult<SceneSource<'a>> {
     match kind {
         "default" => Ok(SceneSource::Default),
@@ -240,6 +255,7 @@ fn range(
         kind: chirpmap::core::scene::SweepKind::Linear,
     };
     let x = samples.as_slice().map_err(|_| value_error("samples must be a contiguous array"))?;
+    check_samples(x, "samples")?;
     py.detach(|| -> Result<String, String> {
         geom.validate().map_err(|e| error_text(&e))?;
         let prep = chirpmap::prepare(x.to_vec(), sample_rate, &chirp).map_err(|e| error_text(&e))?;
@@ -301,6 +317,7 @@ fn echoes_from_recording<'py>(
         listener_id: listener,
     };
     let x = samples.as_slice().map_err(|_| value_error("samples must be a contiguous array"))?;
+    check_samples(x, "samples")?;
     let got = py
         .detach(|| -> Result<_, String> {
             let track = chirpmap::PoseTrack::new(rows).map_err(|e| format!("poses: {}", error_text(&e)))?;
@@ -358,10 +375,14 @@ fn room_echoes<'py>(
         kind,
     };
     let x = samples.as_slice().map_err(|_| value_error("samples must be a contiguous array"))?;
+    check_samples(x, "samples")?;
     let cal = match &calibration {
         Some(c) => Some(c.as_slice().map_err(|_| value_error("calibration must be a contiguous array"))?),
         None => None,
     };
+    if let Some(c) = cal {
+        check_samples(c, "calibration")?;
+    }
     let (report, echoes) = py
         .detach(|| -> Result<_, String> {
             let report = rooms::room_report(x, sample_rate, input, &chirp, &geom, opts, cal)?;

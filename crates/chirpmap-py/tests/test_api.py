@@ -110,6 +110,46 @@ def test_bad_recordings_raise_value_error():
         chirpmap.range(np.zeros((10, 2)), fs, (0, 0), (1, 0), channel=2)
 
 
+def test_review_findings_raise_value_error(tmp_path):
+    """Session 20's review of the package: a NaN or infinite sample is named
+    (it gave "no chirp found"), poses the CLI refuses are refused, a FIFO
+    scene path is refused (opening it waited for a writer for good), and a
+    scene given as text or a dict is capped before it is converted."""
+    rec, rate, poses = chirpmap.synth({"synth": {"chirps": 2}})
+    x = rec[:, 0].copy()
+    x[1000] = np.nan
+    with pytest.raises(ValueError, match=r"samples\[1000\] is NaN: samples must be finite"):
+        chirpmap.range(x, rate, (-3, 10), (0, 0))
+    with pytest.raises(ValueError, match=r"samples\[1000\] is NaN"):
+        chirpmap.echoes_from_recording(x, rate, poses[0], (0, 0))
+    with pytest.raises(ValueError, match=r"samples\[1000\] is NaN"):
+        chirpmap.room_echoes(x, rate, (0, 0), (1, 0))
+    x[1000] = np.inf
+    with pytest.raises(ValueError, match=r"samples\[1000\] is inf"):
+        chirpmap.room_echoes(x, rate, (0, 0), (1, 0), input="rir")
+    fast = poses[0].copy()
+    fast[:, 1:] *= 1000.0
+    with pytest.raises(ValueError, match=r"the listener moves at .* at least the speed of sound"):
+        chirpmap.echoes_from_recording(rec[:, 0], rate, fast, (0, 0))
+    far = poses[0].copy()
+    far[-1, 1] += 1e300
+    with pytest.raises(ValueError, match=r"is beyond ±1000000 m"):
+        chirpmap.echoes_from_recording(rec[:, 0], rate, far, (0, 0))
+    ms = poses[0].copy()
+    ms[:, 0] *= 1000.0
+    with pytest.raises(ValueError, match=r"are the times in milliseconds\?"):
+        chirpmap.echoes_from_recording(rec[:, 0], rate, ms, (0, 0))
+    if hasattr(os, "mkfifo"):
+        fifo = tmp_path / "scene.fifo"
+        os.mkfifo(fifo)
+        with pytest.raises(ValueError, match=r"is a FIFO \(named pipe\)"):
+            chirpmap.simulate(fifo)
+    with pytest.raises(ValueError, match=r"^scene \(TOML text\): holds up to 4000003 values"):
+        chirpmap.simulate("a = [" + "1," * 4_000_001 + "1]")
+    with pytest.raises(ValueError, match=r"^scene dict \(as JSON\): holds up to"):
+        chirpmap.simulate({"obstacles": [{"center": [0.0, 0.0], "radius": 1.0}] * 1_000_000})
+
+
 def test_results_own_rust_buffers_without_copies():
     run = chirpmap.simulate(seed=2)
     for a in (run.grid, run.echoes, run.highlights):

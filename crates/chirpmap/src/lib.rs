@@ -66,9 +66,9 @@ pub use mapping::{
     observed_points, score,
 };
 pub use recording::{
-    ChirpSpec, ChirpSummary, FrameParams, MethodSummary, PoseTrack, Prepared, RangeGeometry, RangeReport, RangeSummary,
-    RecordingEchoes, SPEED_OF_SOUND_RANGE_MPS, StreamedRange, WallStats, echoes_from_recording, prepare, range,
-    wall_distance,
+    ChirpSpec, ChirpSummary, FrameParams, MAX_SPAN_RATIO, MethodSummary, PoseTrack, Prepared, RangeGeometry,
+    RangeReport, RangeSummary, RecordingEchoes, SPEED_OF_SOUND_RANGE_MPS, StreamedRange, WallStats,
+    echoes_from_recording, prepare, range, wall_distance,
 };
 pub use rooms::{
     DEFAULT_MAX_ECHOES, ECHOGRAM_CHIRPS, EchoCluster, EchoOptions, RoomEcho, RoomGeometry, RoomPrepared, RoomReport,

@@ -10,6 +10,7 @@ use chirpmap_audio::ranging::{ChirpResult, Estimate, RangedChirp, gap_floor_m, r
 use chirpmap_audio::stats::{median, median_ci95};
 use chirpmap_audio::synth::pattern_cycle;
 use chirpmap_audio::{ChirpTemplate, Method, RangeLimits, wall_distance_m};
+use chirpmap_core::error::Num;
 use chirpmap_core::scene::SweepKind;
 use chirpmap_core::{Echo, LinearChirp, Point, Scene};
 use serde::Serialize;
@@ -448,6 +449,12 @@ fn summarise(method: Method, rows: &[ChirpResult], geom: &RangeGeometry) -> Meth
     }
 }
 
+/// The largest ratio of the poses' span to the recording's length accepted
+/// ([`PoseTrack::check_span`]). Poses may outlast a recording (a log started
+/// earlier), but times in milliseconds against a recording in seconds give
+/// a ratio near 1000.
+pub const MAX_SPAN_RATIO: f64 = 100.0;
+
 /// A listener's positions over time, linearly interpolated between poses.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PoseTrack {
@@ -465,12 +472,72 @@ impl PoseTrack {
         if let Some((t, p)) = rows.iter().find(|(t, p)| !(t.is_finite() && p.x.is_finite() && p.y.is_finite())) {
             return Err(Error::Invalid(format!("pose at t = {t} s, ({}, {}) is not finite", p.x, p.y)));
         }
+        if let Some((t, p)) = rows.iter().find(|(_, p)| !p.is_sane()) {
+            return Err(Error::Invalid(format!(
+                "pose at t = {} s: position {p} is beyond ±{} m",
+                Num(*t),
+                Num(chirpmap_core::geometry::MAX_COORD_M)
+            )));
+        }
         rows.sort_by(|a, b| a.0.total_cmp(&b.0));
         rows.dedup_by(|b, a| a.0 == b.0 && a.1 == b.1);
         if let Some(w) = rows.windows(2).find(|w| w[0].0 == w[1].0) {
             return Err(Error::Invalid(format!("two different poses at t = {} s", w[0].0)));
         }
         Ok(Self { rows })
+    }
+
+    /// Refuses poses between which the listener moves at or above
+    /// `speed_of_sound_mps`: no echo can be ranged from such a walk (a scene
+    /// refuses such a listener alike), and such poses are a unit or column
+    /// mix-up (poses 30 m apart every 10 ms mapped garbage, 66 times as
+    /// slowly as the true poses).
+    pub fn check_speed(&self, speed_of_sound_mps: f64) -> Result<()> {
+        let step = |w: &[(f64, Point)]| w[1].1.dist(w[0].1) / (w[1].0 - w[0].0);
+        let fastest = self.rows.windows(2).max_by(|a, b| step(a).total_cmp(&step(b)));
+        match fastest {
+            Some(w) if step(w) >= speed_of_sound_mps => Err(Error::Invalid(format!(
+                "the listener moves at {} m/s between the poses at t = {} s and {} s, at least the speed of sound \
+                 ({} m/s): are the times in seconds and the positions in metres?",
+                Num(step(w)),
+                Num(w[0].0),
+                Num(w[1].0),
+                Num(speed_of_sound_mps)
+            ))),
+            _ => Ok(()),
+        }
+    }
+
+    /// Checks the poses' times against a recording of `recording_s` seconds:
+    /// they must overlap `[0, recording_s]`, and their span must not exceed
+    /// [`MAX_SPAN_RATIO`] × the recording (times in milliseconds against a
+    /// recording in seconds are refused instead of silently mapping nothing).
+    pub fn check_span(&self, recording_s: f64) -> Result<()> {
+        let (t0, t1) = self.span();
+        if !(recording_s.is_finite() && recording_s > 0.0) {
+            return Err(Error::Invalid(format!(
+                "the recording's length must be finite and > 0 s, got {}",
+                Num(recording_s)
+            )));
+        }
+        if t0 > recording_s || t1 < 0.0 {
+            return Err(Error::Invalid(format!(
+                "the poses span {}–{} s but the recording lasts {} s: they do not overlap (are the times in \
+                 seconds from the start of the recording?)",
+                Num(t0),
+                Num(t1),
+                Num(recording_s)
+            )));
+        }
+        if t1 - t0 > MAX_SPAN_RATIO * recording_s {
+            return Err(Error::Invalid(format!(
+                "the poses span {} s, more than {MAX_SPAN_RATIO} times the {} s recording: are the times in \
+                 milliseconds?",
+                Num(t1 - t0),
+                Num(recording_s)
+            )));
+        }
+        Ok(())
     }
 
     /// The poses, sorted by time.
@@ -557,6 +624,8 @@ impl RecordingEchoes {
         poses: &PoseTrack,
         opts: &MovingOptions,
     ) -> Result<RecordingEchoes> {
+        poses.check_speed(chirp.speed_of_sound_mps)?;
+        poses.check_span(prep.duration_s)?;
         let scene_chirp = chirpmap_core::scene::ChirpSpec {
             f_start: chirp.f_start_hz,
             f_end: chirp.f_end_hz,
@@ -668,6 +737,30 @@ pub(crate) fn first_pass<T>(
 
 #[cfg(test)]
 mod tests {
+
+    /// Poses checked as the CLI checks its poses file, for every caller of
+    /// the facade (the Python package took poses at 10 km/s, 1e300 m away or
+    /// in milliseconds without a word): positions within ±10⁶ m, a listener
+    /// below the speed of sound, times overlapping the recording and
+    /// spanning at most 100 times it.
+    #[test]
+    fn poses_are_checked_for_every_caller() {
+        let p = |rows: &[(f64, f64)]| PoseTrack::new(rows.iter().map(|&(t, x)| (t, Point::new(x, 10.0))).collect());
+        let e = p(&[(0.0, -3.0), (4.5, 1e300)]).unwrap_err().to_string();
+        assert!(e.contains("pose at t = 4.5 s: position (1e300, 10) is beyond ±1000000 m"), "{e}");
+        let walk = p(&[(0.0, -3.0), (4.5, 42.0)]).unwrap();
+        walk.check_speed(343.0).unwrap();
+        walk.check_span(4.5).unwrap();
+        let fast = p(&[(0.0, -3000.0), (4.5, 42000.0)]).unwrap();
+        let e = fast.check_speed(343.0).unwrap_err().to_string();
+        assert!(e.starts_with("the listener moves at 10000 m/s between the poses at t = 0 s and 4.5 s"), "{e}");
+        let ms = p(&[(0.0, -3.0), (4500.0, 42.0)]).unwrap();
+        let e = ms.check_span(4.5).unwrap_err().to_string();
+        assert!(e.contains("more than 100 times the 4.5 s recording: are the times in milliseconds?"), "{e}");
+        let late = p(&[(10.0, -3.0), (14.5, 42.0)]).unwrap();
+        assert!(late.check_span(4.5).unwrap_err().to_string().contains("they do not overlap"));
+    }
+
     use super::*;
 
     #[test]

@@ -371,10 +371,29 @@ pub fn calibration_response(prep: &RoomPrepared, opts: &EchoOptions) -> Result<S
 
 /// The system response of a calibration impulse response (`--input rir`).
 pub fn calibration_response_rir(rir: &[f32], sample_rate_hz: f64, opts: &EchoOptions) -> Result<SystemResponse> {
+    check_rir_memory(rir, "the calibration impulse response")?;
     let ir = analytic(rir);
     let (pre, ringing) = (pre_samples(sample_rate_hz), ringing_samples(opts, sample_rate_hz));
     SystemResponse::from_direct(&ir, 0..ir.len().saturating_sub(ringing), pre, ringing)
         .ok_or_else(|| Error::Invalid("the calibration impulse response has no usable direct peak".into()))
+}
+
+/// Peak memory of searching an impulse response, per sample: its analytic
+/// signal (FFT buffers of twice its length rounded up to a power of two)
+/// and the copies around it; ~160 B measured (20 M samples peaked at
+/// 3.2 GB, 50 M at 6.9 GB; session 20's review).
+const RIR_BYTES_PER_SAMPLE: u128 = 160;
+
+/// Refuses an impulse response whose search would exceed the audio memory
+/// cap, before anything is allocated: only the first `max_delta_d` of it
+/// is searched, yet all of it is transformed.
+fn check_rir_memory(rir: &[f32], what: &str) -> Result<()> {
+    chirpmap_audio::error::check_memory(
+        || format!("{what} ({} samples)", rir.len()),
+        rir.len() as u128 * RIR_BYTES_PER_SAMPLE,
+        "cut it to the part that holds the echoes (the direct sound and max_delta_d beyond it)",
+    )?;
+    Ok(())
 }
 
 fn ringing_samples(opts: &EchoOptions, fs: f64) -> usize {
@@ -527,6 +546,7 @@ pub fn rir_echoes(
     if rir.iter().all(|v| *v == 0.0) {
         return Err(Error::Invalid("the impulse response is silent (every sample is zero)".into()));
     }
+    check_rir_memory(rir, "the impulse response")?;
     let ir = analytic(rir);
     let mut picker = Picker::new(geom, opts, sample_rate_hz, a, max_delta_d_m);
     picker.add(0, 0.0, &ir, 0..ir.len());
@@ -741,6 +761,20 @@ mod tests {
             floor_z_m: Some(0.0),
             ceiling_z_m: Some(3.0),
         }
+    }
+
+    /// An impulse response too long to search within the audio memory cap
+    /// is refused before its transform is allocated (20 M samples took
+    /// 3.2 GB, and the CLI's WAV cap allows 1 G samples).
+    #[test]
+    fn an_impulse_response_too_long_to_search_is_refused() {
+        let mut rir = vec![0f32; 27_000_000];
+        rir[200] = 1.0;
+        let g = RoomGeometry { floor_z_m: None, ceiling_z_m: None, heights_m: None, ..geom3(1.0, 1.0) };
+        let e = rir_echoes(&rir, 48_000.0, 343.0, 8.0, &g, &EchoOptions::default()).unwrap_err().to_string();
+        assert!(e.contains("the impulse response (27000000 samples) would need about") && e.contains("cut it"), "{e}");
+        let e = calibration_response_rir(&rir, 48_000.0, &EchoOptions::default()).unwrap_err().to_string();
+        assert!(e.contains("the calibration impulse response (27000000 samples)"), "{e}");
     }
 
     /// A floor or ceiling on the wrong side of the speaker and mic is named
