@@ -273,7 +273,7 @@ pub fn synth_memory_bytes(scene: &Scene, cfg: &SynthConfig) -> f64 {
 
 /// Samples per channel and poses per listener of a rendering (as `f64`, so
 /// absurd inputs do not overflow before they are refused).
-fn synth_lengths(scene: &Scene, cfg: &SynthConfig) -> (f64, f64) {
+pub fn synth_lengths(scene: &Scene, cfg: &SynthConfig) -> (f64, f64) {
     let period = scene.chirp.duration + cfg.gap_s;
     let total_s = cfg.start_s + cfg.chirps as f64 * period - cfg.gap_s + cfg.tail_s;
     ((total_s * f64::from(cfg.sample_rate_hz)).ceil(), (total_s / cfg.pose_period_s).floor() + 1.0)

@@ -182,6 +182,17 @@ fn synth<'py>(
     let (samples, rate, poses) = py
         .detach(|| -> Result<_, String> {
             let (scene, cfg, name) = convert::load_scene(src)?;
+            // The poses are handed out as (m, 3) arrays, built while the
+            // rendering's own poses are alive: counted twice against the
+            // cap (a scene just under it peaked at twice its estimate).
+            let (_, poses_per_listener) = chirpmap::audio::synth::synth_lengths(&scene, &cfg);
+            let copy = scene.listeners.len() as f64 * poses_per_listener * 24.0;
+            chirpmap::audio::error::check_memory(
+                || format!("{name}: the rendering and its poses as arrays"),
+                (chirpmap::audio::synth::synth_memory_bytes(&scene, &cfg) + copy) as u128,
+                "fewer chirps, a lower sample rate or a longer pose_period_s",
+            )
+            .map_err(|e| e.to_string())?;
             let syn = chirpmap::synth(&scene, &cfg).map_err(|e| format!("{name}: {}", error_text(&e)))?;
             let n_listeners = syn.channels.len();
             let n = syn.channels.first().map_or(0, Vec::len);
