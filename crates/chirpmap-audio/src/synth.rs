@@ -197,6 +197,9 @@ pub fn parse_scene_with_synth(text: &str) -> Result<(Scene, SynthConfig), AudioE
     chirpmap_core::error::check_toml_values(text).map_err(invalid)?;
     let mut table: toml::Table =
         text.parse().map_err(|e: toml::de::Error| invalid(chirpmap_core::error::toml_error(text, &e)))?;
+    if let Some(v) = table.get("synth").filter(|v| !v.is_table()) {
+        return Err(invalid(format!("`synth` must be a table (`[synth]`), not {}", v.type_str())));
+    }
     let split = if table.contains_key("synth") { split_synth_lines(text) } else { None };
     let (scene, cfg) = match (table.remove("synth"), split) {
         (None, _) => (Scene::from_toml_str(text)?, SynthConfig::default()),

@@ -455,12 +455,56 @@ impl Default for ListenerSpec {
     }
 }
 
+/// The keys of a scene that hold a table.
+const SCENE_TABLES: [&str; 6] = ["world", "chirp", "source", "particles", "random_obstacles", "mapping"];
+
+/// Refuses a scene table whose sections are not tables where tables belong
+/// (`[mapping]`, `[[listeners]]`, a listener's `sampling`, …): serde fills a
+/// struct from an array field by field, so `mapping = [0.5]` set the cell
+/// to 0.5 and `listeners = [[[-2, 10]]]` a listener's start, without a word
+/// (session 20's review). Shared by every reader of scenes (files, the
+/// Python package's dicts, a sweep's configurations).
+pub fn check_scene_tables(scene: &toml::Table) -> Result<(), String> {
+    /// `path` names the value; `how` is the way to write it as a table.
+    fn table(path: &str, how: &str, v: &toml::Value) -> Result<(), String> {
+        if v.is_table() {
+            return Ok(());
+        }
+        Err(format!("`{path}` must be a table (`{how}`), not {}", v.type_str()))
+    }
+    for key in SCENE_TABLES {
+        if let Some(v) = scene.get(key) {
+            table(key, &format!("[{key}]"), v)?;
+        }
+    }
+    if let Some(v) = scene.get("mapping").and_then(|m| m.get("evidence")) {
+        table("mapping.evidence", "[mapping.evidence]", v)?;
+    }
+    for list in ["obstacles", "listeners"] {
+        let Some(v) = scene.get(list) else { continue };
+        let items = v
+            .as_array()
+            .ok_or_else(|| format!("`{list}` must be an array of tables (`[[{list}]]`), not {}", v.type_str()))?;
+        for (i, item) in items.iter().enumerate() {
+            table(&format!("{list}[{i}]"), &format!("[[{list}]]"), item)?;
+            if let Some(s) = item.get("sampling") {
+                table(&format!("{list}[{i}].sampling"), "sampling = { ... }", s)?;
+            }
+        }
+    }
+    Ok(())
+}
+
 impl Scene {
     /// Parses a scene; TOML errors carry line and column and quote at most a
     /// short excerpt of the offending line ([`crate::error::toml_error`]).
     /// Parsing does not validate values: call [`Scene::validate`].
     pub fn from_toml_str(text: &str) -> Result<Self, CoreError> {
         crate::error::check_toml_values(text).map_err(CoreError::InvalidScene)?;
+        // Text that does not parse gets the parser's error, with its line, below.
+        if let Ok(table) = text.parse::<toml::Table>() {
+            check_scene_tables(&table).map_err(CoreError::InvalidScene)?;
+        }
         toml::from_str(text).map_err(|e| CoreError::InvalidScene(toml_error(text, &e)))
     }
 
@@ -656,6 +700,28 @@ impl Scene {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A section given as an array (or a number) where a table belongs is
+    /// refused naming it: serde filled the struct from the array, field by
+    /// field (`mapping = [0.5]` set the cell to 0.5).
+    #[test]
+    fn sections_that_are_not_tables_are_refused() {
+        for (text, want) in [
+            ("mapping = [0.5]\n", "`mapping` must be a table (`[mapping]`), not array"),
+            ("world = 3\n", "`world` must be a table (`[world]`), not integer"),
+            ("[mapping]\nevidence = [1, 2]\n", "`mapping.evidence` must be a table"),
+            ("listeners = [[[-2.0, 10.0]]]\n", "`listeners[0]` must be a table (`[[listeners]]`), not array"),
+            ("listeners = 1\n", "`listeners` must be an array of tables (`[[listeners]]`), not integer"),
+            ("[[listeners]]\nsampling = [1.0]\n", "`listeners[0].sampling` must be a table (`sampling = { ... }`)"),
+            ("obstacles = [[0.0, 1.0]]\n", "`obstacles[0]` must be a table"),
+        ] {
+            let e = Scene::from_toml_str(text).unwrap_err().to_string();
+            assert!(e.contains(want), "{text:?}: {e}");
+        }
+        // Inline tables are tables.
+        Scene::from_toml_str("mapping = { cell = 0.5 }\n[[listeners]]\nsampling = { period_ms = 5.0 }\n").unwrap();
+    }
+
 
     #[test]
     fn empty_file_is_default_scene() {

@@ -215,6 +215,7 @@ impl SweepDef {
                 choice[k] = rem % p.values.len();
                 rem /= p.values.len();
             }
+            chirpmap_core::scene::check_scene_tables(&self.base).map_err(|m| err(format!("base scene: {m}")))?;
             let mut value = toml::Value::Table(self.base.clone());
             // Start from the fully defaulted base so paths into defaults exist.
             let base: Scene = value.clone().try_into().map_err(|e| err(format!("base scene: {e}")))?;
@@ -227,6 +228,9 @@ impl SweepDef {
             let one_line = |e: toml::de::Error| {
                 chirpmap_core::error::short_message(&e.to_string().split_whitespace().collect::<Vec<_>>().join(" "))
             };
+            if let toml::Value::Table(t) = &value {
+                chirpmap_core::scene::check_scene_tables(t).map_err(|m| err(format!("configuration {index}: {m}")))?;
+            }
             let mut scene: Scene =
                 value.try_into().map_err(|e| err(format!("configuration {index}: {}", one_line(e))))?;
             scene.seed = self.seed;

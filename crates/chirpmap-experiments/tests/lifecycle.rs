@@ -577,3 +577,15 @@ fn merging_into_an_earlier_merge_keeps_its_runs() {
     drop(held);
     merge(&[shards[0].as_path()], &full, plan_of).unwrap();
 }
+
+/// A sweep's base scene or parameter value that puts an array where a
+/// table belongs is refused naming it (serde filled the struct from it).
+#[test]
+fn a_sweep_with_an_array_for_a_table_is_refused() {
+    let base = SweepDef::from_toml_str(&SWEEP.replace("seed = 3", "seed = 3\n[base]\nmapping = [0.5]")).unwrap();
+    let e = base.plan(|_| Ok(())).unwrap_err().to_string();
+    assert!(e.contains("base scene: `mapping` must be a table"), "{e}");
+    let param = format!("{SWEEP}[[params]]\nname = \"m\"\npath = \"mapping\"\nvalues = [[0.5]]\n");
+    let e = SweepDef::from_toml_str(&param).unwrap().plan(|_| Ok(())).unwrap_err().to_string();
+    assert!(e.contains("configuration 0: `mapping` must be a table"), "{e}");
+}

@@ -148,6 +148,11 @@ def test_review_findings_raise_value_error(tmp_path):
         chirpmap.simulate("a = [" + "1," * 4_000_001 + "1]")
     with pytest.raises(ValueError, match=r"^scene dict \(as JSON\): holds up to"):
         chirpmap.simulate({"obstacles": [{"center": [0.0, 0.0], "radius": 1.0}] * 1_000_000})
+    # An array where a table belongs was read field by field.
+    with pytest.raises(ValueError, match=r"`mapping` must be a table"):
+        chirpmap.simulate({"mapping": [0.5]})
+    with pytest.raises(TypeError, match=r"evidence must be a dict"):
+        chirpmap.map_echoes(np.array([GOOD, GOOD]), mapper="evidence", evidence=[1, 2])
     # Poses handed out as arrays are a second copy, counted against the cap
     # (this rendering passed at 3.4 GiB and peaked at 6.8).
     with pytest.raises(ValueError, match=r"the rendering and its poses as arrays would need about"):

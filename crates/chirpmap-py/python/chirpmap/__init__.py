@@ -268,6 +268,8 @@ def map_echoes(
             raise ValueError(f"bounds: expected (x_min, y_min, x_max, y_max), got {len(b)} values")
     ev = None
     if evidence is not None:
+        if not isinstance(evidence, dict):
+            raise TypeError(f"evidence must be a dict of the evidence mapper's parameters, not {type(evidence).__name__}")
         try:
             ev = json.dumps(evidence, allow_nan=False)
         except (TypeError, ValueError) as e:
