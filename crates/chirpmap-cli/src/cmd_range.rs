@@ -442,7 +442,7 @@ fn run_echoes(args: &RangeArgs) -> Result<()> {
     }
     let a = chirp.speed_of_sound_mps;
     let report = if rir {
-        let max_dd = chirp.max_delta_d_m.unwrap_or(60.0).min(a * x.len() as f64 / fs);
+        let max_dd = chirpmap::rir_max_delta_d(chirp.max_delta_d_m, a, x.len(), fs)?;
         chirpmap::rir_echoes(&x, fs, a, max_dd, &geom, &opts).map_err(field_err(&args.wav))?
     } else {
         // CHIRPMAP_RANGE_IN_MEMORY=1: the recording read whole, as before issue 14 (the

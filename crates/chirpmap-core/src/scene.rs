@@ -722,7 +722,6 @@ mod tests {
         Scene::from_toml_str("mapping = { cell = 0.5 }\n[[listeners]]\nsampling = { period_ms = 5.0 }\n").unwrap();
     }
 
-
     #[test]
     fn empty_file_is_default_scene() {
         assert_eq!(Scene::from_toml_str("").unwrap(), Scene::default());

@@ -16,8 +16,8 @@ use chirpmap::{ChirpSpec, EchoOptions, Point, RoomGeometry, RoomReport};
 pub const MAX_ECHOES_LIMIT: usize = 1000;
 
 /// Largest Δd searched in an impulse response when none is given (m), as
-/// `range --input rir` (cmd_range.rs): 60 m, or what the response's length covers.
-pub const RIR_DEFAULT_MAX_DELTA_D_M: f64 = 60.0;
+/// `range --input rir`: 60 m, or what the response's length covers.
+pub use chirpmap::RIR_DEFAULT_MAX_DELTA_D_M;
 
 /// What the samples hold: a recording of chirps, or an impulse response
 /// whose time zero is the emission (`range --input wav|rir`).
@@ -134,9 +134,8 @@ pub fn room_report(
     let report = match input {
         Input::Rir => {
             let a = chirp.speed_of_sound_mps;
-            let max_dd =
-                chirp.max_delta_d_m.unwrap_or(RIR_DEFAULT_MAX_DELTA_D_M).min(a * x.len() as f64 / sample_rate_hz);
-            chirpmap::rir_echoes(x, sample_rate_hz, a, max_dd, geom, &opts)
+            chirpmap::rir_max_delta_d(chirp.max_delta_d_m, a, x.len(), sample_rate_hz)
+                .and_then(|max_dd| chirpmap::rir_echoes(x, sample_rate_hz, a, max_dd, geom, &opts))
         }
         Input::Recording => chirpmap::prepare_room(x.to_vec(), sample_rate_hz, chirp)
             .and_then(|prep| chirpmap::room_echoes(&prep, geom, &opts)),

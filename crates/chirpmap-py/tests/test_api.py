@@ -153,6 +153,19 @@ def test_review_findings_raise_value_error(tmp_path):
         chirpmap.simulate({"mapping": [0.5]})
     with pytest.raises(TypeError, match=r"evidence must be a dict"):
         chirpmap.map_echoes(np.array([GOOD, GOOD]), mapper="evidence", evidence=[1, 2])
+    # Arguments named in their errors; numpy integers are integers.
+    for kwargs, message in [
+        ({"cell": None}, "cell must be a number, not NoneType"),
+        ({"cell": "x"}, "cell must be a number, not str"),
+        ({"bounds": 5}, "bounds must be (x_min, y_min, x_max, y_max), not int"),
+        ({"bounds": "0,0,1,1"}, "bounds must be (x_min, y_min, x_max, y_max), not str"),
+    ]:
+        with pytest.raises(TypeError) as e:
+            chirpmap.map_echoes(np.array([GOOD, GOOD]), **kwargs)
+        assert message in str(e.value)
+    assert chirpmap.simulate(seed=np.int64(3)).seed == 3
+    with pytest.raises(ValueError, match=r"max_delta_d: must be finite and > 0, got NaN"):
+        chirpmap.room_echoes(rec[:, 0], rate, (0, 0), (1, 0), input="rir", max_delta_d=float("nan"))
     # Poses handed out as arrays are a second copy, counted against the cap
     # (this rendering passed at 3.4 GiB and peaked at 6.8).
     with pytest.raises(ValueError, match=r"the rendering and its poses as arrays would need about"):

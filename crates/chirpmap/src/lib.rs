@@ -71,8 +71,9 @@ pub use recording::{
     echoes_from_recording, prepare, range, wall_distance,
 };
 pub use rooms::{
-    DEFAULT_MAX_ECHOES, ECHOGRAM_CHIRPS, EchoCluster, EchoOptions, RoomEcho, RoomGeometry, RoomPrepared, RoomReport,
-    StreamedRoom, calibration_response, calibration_response_rir, prepare_room, rir_echoes, room_echoes,
+    DEFAULT_MAX_ECHOES, ECHOGRAM_CHIRPS, EchoCluster, EchoOptions, RIR_DEFAULT_MAX_DELTA_D_M, RoomEcho, RoomGeometry,
+    RoomPrepared, RoomReport, StreamedRoom, calibration_response, calibration_response_rir, prepare_room, rir_echoes,
+    rir_max_delta_d, room_echoes,
 };
 pub use simulate::{Simulation, default_listener_path, parse_scene, scene_truth, simulate, validate_scene};
 

@@ -378,6 +378,27 @@ pub fn calibration_response_rir(rir: &[f32], sample_rate_hz: f64, opts: &EchoOpt
         .ok_or_else(|| Error::Invalid("the calibration impulse response has no usable direct peak".into()))
 }
 
+/// The longest path difference searched in an impulse response by default
+/// (m), as `range --input rir` searches it.
+pub const RIR_DEFAULT_MAX_DELTA_D_M: f64 = 60.0;
+
+/// The path difference (m) searched in an impulse response of `samples` at
+/// `sample_rate_hz`: `max_delta_d_m` (default [`RIR_DEFAULT_MAX_DELTA_D_M`]),
+/// but no more than the response covers. A given value that is not finite
+/// and > 0 is refused: `f64::min` drops a NaN, so `--max-delta-d NaN`
+/// searched the default without a word.
+pub fn rir_max_delta_d(
+    max_delta_d_m: Option<f64>,
+    speed_of_sound_mps: f64,
+    samples: usize,
+    sample_rate_hz: f64,
+) -> Result<f64> {
+    if let Some(m) = max_delta_d_m.filter(|m| !(m.is_finite() && *m > 0.0)) {
+        return Err(Error::Field { field: "max_delta_d", reason: format!("must be finite and > 0, got {}", Num(m)) });
+    }
+    Ok(max_delta_d_m.unwrap_or(RIR_DEFAULT_MAX_DELTA_D_M).min(speed_of_sound_mps * samples as f64 / sample_rate_hz))
+}
+
 /// Peak memory of searching an impulse response, per sample: its analytic
 /// signal (FFT buffers of twice its length rounded up to a power of two)
 /// and the copies around it; ~160 B measured (20 M samples peaked at
@@ -761,6 +782,15 @@ mod tests {
             floor_z_m: Some(0.0),
             ceiling_z_m: Some(3.0),
         }
+    }
+
+    /// A given `max_delta_d` that is NaN is refused (it searched the default).
+    #[test]
+    fn a_nan_max_delta_d_is_refused() {
+        let e = rir_max_delta_d(Some(f64::NAN), 343.0, 48_000, 48_000.0).unwrap_err().to_string();
+        assert_eq!(e, "max_delta_d: must be finite and > 0, got NaN");
+        assert_eq!(rir_max_delta_d(None, 343.0, 48_000, 48_000.0).unwrap(), 60.0);
+        assert_eq!(rir_max_delta_d(Some(500.0), 343.0, 48_000, 48_000.0).unwrap(), 343.0);
     }
 
     /// An impulse response too long to search within the audio memory cap

@@ -25,6 +25,7 @@ with the CLI's message.
 from __future__ import annotations
 
 import json
+import operator
 import os
 from dataclasses import dataclass, field
 from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
@@ -151,6 +152,16 @@ def _map_kwargs(d: Dict[str, Any]) -> Dict[str, Any]:
     return d
 
 
+def _float(name: str, value: Any) -> float:
+    """``float(value)``, with errors that name the argument."""
+    if isinstance(value, (str, bytes)) or value is None:
+        raise TypeError(f"{name} must be a number, not {type(value).__name__}")
+    try:
+        return float(value)
+    except (TypeError, ValueError) as e:
+        raise TypeError(f"{name} must be a number: {e}") from None
+
+
 def _scene_source(scene: SceneLike) -> Tuple[str, str]:
     """(kind, payload) for the compiled module: how to read ``scene``."""
     if scene is None:
@@ -195,8 +206,11 @@ def simulate(scene: SceneLike = None, seed: Optional[int] = None) -> Simulation:
     Raises:
         ValueError: the scene is invalid (the message names the field).
     """
-    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int)):
-        raise TypeError(f"seed must be an int, not {type(seed).__name__}")
+    if seed is not None:
+        # Any integer type (numpy's too), but not a bool or a float.
+        if isinstance(seed, bool) or not hasattr(seed, "__index__"):
+            raise TypeError(f"seed must be an int, not {type(seed).__name__}")
+        seed = operator.index(seed)
     if seed is not None and not 0 <= seed <= 2**63 - 1:
         raise ValueError(
             f"seed: must be between 0 and 2^63 - 1 (scene.toml records it as a TOML integer), got {seed}"
@@ -263,7 +277,9 @@ def map_echoes(
         )
     b = None
     if bounds is not None:
-        b = [float(v) for v in bounds]
+        if isinstance(bounds, (str, bytes)) or not hasattr(bounds, "__len__"):
+            raise TypeError(f"bounds must be (x_min, y_min, x_max, y_max), not {type(bounds).__name__}")
+        b = [_float("bounds", v) for v in bounds]
         if len(b) != 4:
             raise ValueError(f"bounds: expected (x_min, y_min, x_max, y_max), got {len(b)} values")
     ev = None
@@ -282,10 +298,10 @@ def map_echoes(
         arr,
         sig,
         b,
-        float(cell),
-        float(keep_top),
-        float(min_of_max),
-        float(peak_radius),
+        _float("cell", cell),
+        _float("keep_top", keep_top),
+        _float("min_of_max", min_of_max),
+        _float("peak_radius", peak_radius),
         ellipse_points,
         str(mapper),
         ev,
