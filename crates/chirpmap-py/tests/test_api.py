@@ -164,6 +164,8 @@ def test_review_findings_raise_value_error(tmp_path):
             chirpmap.map_echoes(np.array([GOOD, GOOD]), **kwargs)
         assert message in str(e.value)
     assert chirpmap.simulate(seed=np.int64(3)).seed == 3
+    with pytest.raises(ValueError, match=r"channel: must be a channel number from 0, got -1"):
+        chirpmap.echoes_from_recording(rec[:, 0], rate, poses[0], (0, 0), channel=-1)
     with pytest.raises(ValueError, match=r"max_delta_d: must be finite and > 0, got NaN"):
         chirpmap.room_echoes(rec[:, 0], rate, (0, 0), (1, 0), input="rir", max_delta_d=float("nan"))
     # Poses handed out as arrays are a second copy, counted against the cap

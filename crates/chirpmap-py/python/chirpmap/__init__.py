@@ -724,6 +724,11 @@ def _point_2or3(name: str, p: Sequence[float]) -> Tuple[float, float, Optional[f
 
 def _channel(samples: Any, channel: int) -> np.ndarray:
     """One channel as contiguous float32 (as a WAV's samples are read)."""
+    if isinstance(channel, bool) or not hasattr(channel, "__index__"):
+        raise TypeError(f"channel must be an int, not {type(channel).__name__}")
+    channel = operator.index(channel)
+    if not 0 <= channel <= 2**32 - 1:
+        raise ValueError(f"channel: must be a channel number from 0, got {channel}")
     x = np.asarray(samples)
     if x.ndim == 2:
         if not 0 <= channel < x.shape[1]:
