@@ -137,8 +137,8 @@ pub enum SceneSource<'a> {
     Toml(&'a str),
     /// A dict, serialised by Python's `json.dumps`.
     Json(&'a str),
-    /// A scene file.
-    Path(&'a str),
+    /// A scene file (any name the OS allows, UTF-8 or not).
+    Path(&'a std::path::Path),
 }
 
 /// The scene and its `[synth]` table, plus a name for error messages (the
@@ -161,17 +161,18 @@ pub fn load_scene(src: SceneSource<'_>) -> Result<(Scene, SynthConfig, String), 
             let (s, c) = chirpmap::parse_scene(&text).map_err(|e| format!("scene dict: {}", error_text(&e)))?;
             Ok((s, c, "scene dict".into()))
         }
-        SceneSource::Path(path) => {
+        SceneSource::Path(file) => {
+            let path = file.display().to_string();
             // Capped as the CLI caps it: an endless stream (`/dev/zero`) or a
             // huge file is refused instead of read until memory runs out.
             // A FIFO blocks `open` until a writer comes, and a call cannot
             // be interrupted (the review of session 20 found one hanging).
             #[cfg(unix)]
-            if std::fs::metadata(path).is_ok_and(|m| std::os::unix::fs::FileTypeExt::is_fifo(&m.file_type())) {
+            if std::fs::metadata(file).is_ok_and(|m| std::os::unix::fs::FileTypeExt::is_fifo(&m.file_type())) {
                 return Err(format!("scene {path} is a FIFO (named pipe): give a scene file or the scene's text"));
             }
             let mut text = String::new();
-            std::fs::File::open(path)
+            std::fs::File::open(file)
                 .and_then(|f| {
                     std::io::Read::read_to_string(&mut std::io::Read::take(f, MAX_SCENE_BYTES + 1), &mut text)
                 })
@@ -180,7 +181,7 @@ pub fn load_scene(src: SceneSource<'_>) -> Result<(Scene, SynthConfig, String), 
                 return Err(format!("scene {path} is too large: more than {MAX_SCENE_BYTES} bytes (the limit)"));
             }
             let (s, c) = chirpmap::parse_scene(&text).map_err(|e| format!("{path}: {}", error_text(&e)))?;
-            Ok((s, c, path.to_string()))
+            Ok((s, c, path))
         }
     }
 }
@@ -288,7 +289,7 @@ mod tests {
         assert_eq!((s.seed, c.chirps, s.world.speed_of_sound, name.as_str()), (9, 2, 340.0, "scene dict"));
         let err = load_scene(SceneSource::Json(r#"{"sede": 9}"#)).expect_err("unknown key");
         assert!(err.starts_with("scene dict: ") && err.contains("sede"), "{err}");
-        let err = load_scene(SceneSource::Path("/nonexistent/scene.toml")).expect_err("missing");
+        let err = load_scene(SceneSource::Path(std::path::Path::new("/nonexistent/scene.toml"))).expect_err("missing");
         assert!(err.starts_with("cannot read scene /nonexistent/scene.toml: "), "{err}");
         assert_eq!(load_scene(SceneSource::Default).expect("default").0, Scene::default());
     }

@@ -46,13 +46,30 @@ fn check_samples(x: &[f32], what: &str) -> PyResult<()> {
     }
 }
 
-fn scene_source<'a>(kind: &str, payload: &'a str) -> PyResult<SceneSource<'a>> {
-    match kind {
-        "default" => Ok(SceneSource::Default),
-        "toml" => Ok(SceneSource::Toml(payload)),
-        "json" => Ok(SceneSource::Json(payload)),
-        "path" => Ok(SceneSource::Path(payload)),
-        other => Err(value_error(format!("unknown scene kind {other:?}"))),
+/// A scene's payload as the wrapper sends it: text (TOML, or a dict's
+/// JSON) or a path. A path is taken as the OS's bytes: taken as `str`, a
+/// file name that is not UTF-8 raised `UnicodeEncodeError`.
+enum Payload {
+    Text(String),
+    Path(std::path::PathBuf),
+    Nothing,
+}
+
+fn read_payload(kind: &str, payload: &Bound<'_, PyAny>) -> PyResult<Payload> {
+    Ok(match kind {
+        "default" => Payload::Nothing,
+        "path" => Payload::Path(payload.extract()?),
+        _ => Payload::Text(payload.extract()?),
+    })
+}
+
+fn scene_source<'a>(kind: &str, payload: &'a Payload) -> PyResult<SceneSource<'a>> {
+    match (kind, payload) {
+        ("default", _) => Ok(SceneSource::Default),
+        ("toml", Payload::Text(t)) => Ok(SceneSource::Toml(t)),
+        ("json", Payload::Text(t)) => Ok(SceneSource::Json(t)),
+        ("path", Payload::Path(p)) => Ok(SceneSource::Path(p)),
+        (other, _) => Err(value_error(format!("unknown scene kind {other:?}"))),
     }
 }
 
@@ -99,10 +116,11 @@ fn map_fields<'py>(py: Python<'py>, d: &Bound<'py, PyDict>, map: MapResult) -> P
 fn simulate<'py>(
     py: Python<'py>,
     scene_kind: &str,
-    scene_payload: &str,
+    scene_payload: &Bound<'py, PyAny>,
     seed: Option<u64>,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let src = scene_source(scene_kind, scene_payload)?;
+    let payload = read_payload(scene_kind, scene_payload)?;
+    let src = scene_source(scene_kind, &payload)?;
     if seed.is_some_and(|s| s > i64::MAX as u64) {
         return Err(value_error("seed: must be between 0 and 2^63 - 1 (scene.toml records it as a TOML integer)"));
     }
@@ -176,9 +194,10 @@ fn map_echoes<'py>(
 fn synth<'py>(
     py: Python<'py>,
     scene_kind: &str,
-    scene_payload: &str,
+    scene_payload: &Bound<'py, PyAny>,
 ) -> PyResult<(Bound<'py, PyAny>, u32, Bound<'py, PyList>)> {
-    let src = scene_source(scene_kind, scene_payload)?;
+    let payload = read_payload(scene_kind, scene_payload)?;
+    let src = scene_source(scene_kind, &payload)?;
     let (samples, rate, poses) = py
         .detach(|| -> Result<_, String> {
             let (scene, cfg, name) = convert::load_scene(src)?;

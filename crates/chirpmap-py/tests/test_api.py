@@ -164,6 +164,19 @@ def test_review_findings_raise_value_error(tmp_path):
             chirpmap.map_echoes(np.array([GOOD, GOOD]), **kwargs)
         assert message in str(e.value)
     assert chirpmap.simulate(seed=np.int64(3)).seed == 3
+    with pytest.raises(TypeError, match=r"samples must be real, not complex"):
+        chirpmap.range(rec[:, 0].astype(np.complex64), rate, (-3, 10), (0, 0))
+    deep: dict = {}
+    for _ in range(100_000):
+        deep = {"a": deep}
+    with pytest.raises(ValueError, match=r"scene dict: nested too deeply"):
+        chirpmap.simulate(deep)
+    # A scene file whose name is not UTF-8 is read (it raised UnicodeEncodeError).
+    if os.name == "posix":
+        odd = os.path.join(os.fsencode(tmp_path), b"sc\xff.toml")
+        with open(odd, "w") as f:
+            f.write("seed = 5\n[particles]\nper_tick = 360\n")
+        assert chirpmap.simulate(pathlib.Path(os.fsdecode(odd))).seed == 5
     with pytest.raises(ValueError, match=r"channel: must be a channel number from 0, got -1"):
         chirpmap.echoes_from_recording(rec[:, 0], rate, poses[0], (0, 0), channel=-1)
     with pytest.raises(ValueError, match=r"max_delta_d: must be finite and > 0, got NaN"):

@@ -171,6 +171,8 @@ def _scene_source(scene: SceneLike) -> Tuple[str, str]:
             return "json", json.dumps(scene, allow_nan=False)
         except (TypeError, ValueError) as e:
             raise ValueError(f"scene dict: {e}") from None
+        except RecursionError:
+            raise ValueError("scene dict: nested too deeply to be a scene") from None
     if isinstance(scene, os.PathLike):
         return "path", os.fspath(scene)
     if isinstance(scene, str):
@@ -730,6 +732,9 @@ def _channel(samples: Any, channel: int) -> np.ndarray:
     if not 0 <= channel <= 2**32 - 1:
         raise ValueError(f"channel: must be a channel number from 0, got {channel}")
     x = np.asarray(samples)
+    if np.iscomplexobj(x):
+        # numpy would drop the imaginary part with only a warning.
+        raise TypeError("samples must be real, not complex")
     if x.ndim == 2:
         if not 0 <= channel < x.shape[1]:
             raise ValueError(f"channel: {channel} is not a channel of {x.shape[1]}")

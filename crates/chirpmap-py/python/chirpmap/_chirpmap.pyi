@@ -1,13 +1,14 @@
 """The compiled module; use the functions of `chirpmap` instead."""
 
-from typing import Any, Dict, List, Optional, Tuple
+import os
+from typing import Any, Dict, List, Optional, Tuple, Union
 
 import numpy as np
 import numpy.typing as npt
 
 __version__: str
 
-def simulate(scene_kind: str, scene_payload: str, seed: Optional[int] = None) -> Dict[str, Any]: ...
+def simulate(scene_kind: str, scene_payload: Union[str, "os.PathLike[str]"], seed: Optional[int] = None) -> Dict[str, Any]: ...
 def map_echoes(
     echoes: npt.NDArray[np.float64],
     sigma: Optional[npt.NDArray[np.float64]],
@@ -21,7 +22,7 @@ def map_echoes(
     evidence_json: Optional[str],
 ) -> Dict[str, Any]: ...
 def synth(
-    scene_kind: str, scene_payload: str
+    scene_kind: str, scene_payload: Union[str, "os.PathLike[str]"]
 ) -> Tuple[npt.NDArray[np.float32], int, List[npt.NDArray[np.float64]]]: ...
 def range(
     samples: npt.NDArray[np.float32],
