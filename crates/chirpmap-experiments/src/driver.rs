@@ -119,13 +119,14 @@ fn check_merge_out(inputs: &[&Path], out: &Path, sweep_text: &str) -> Result<(),
     let refuse = |why: &str| {
         Err(ExperimentError::Merge(format!("--out {} {why}; merge into a new or empty directory", out.display())))
     };
-    match std::fs::read_to_string(out.join(SWEEP_FILE)) {
+    let read = std::fs::read_to_string(out.join(SWEEP_FILE));
+    // Why a whole sweep.toml other than this sweep's is no sweep definition (parsed once).
+    let foreign = read.as_ref().ok().filter(|t| *t != sweep_text).and_then(|t| foreign_sweep_file(t));
+    match read {
         Ok(text) if text != sweep_text && sweep_file_is_cut(&text, sweep_text) => {
             refuse(&format!("holds a {SWEEP_FILE} that {CUT_SHORT}"))
         }
-        Ok(text) if text != sweep_text && foreign_sweep_file(&text).is_some() => {
-            Err(ExperimentError::file(&out.join(SWEEP_FILE), foreign_sweep_file(&text).unwrap_or_default()))
-        }
+        Ok(_) if foreign.is_some() => Err(ExperimentError::file(&out.join(SWEEP_FILE), foreign.unwrap_or_default())),
         Ok(text) if text != sweep_text => refuse("holds another sweep (its sweep.toml differs)"),
         Ok(_) => match std::fs::read_to_string(out.join(SHARD_FILE)) {
             Ok(shard) if shard == MERGED_SHARD => Ok(()),

@@ -400,7 +400,10 @@ impl RunsFile {
         let path = dir.join(RUNS_FILE);
         let sweep_text = plan.def.to_toml_string();
         let shard_text = format!("{}/{}\n", shard.index, shard.count);
-        match std::fs::read_to_string(&sweep_path) {
+        let read = std::fs::read_to_string(&sweep_path);
+        // Why a whole sweep.toml other than this sweep's is no sweep definition (parsed once).
+        let foreign = read.as_ref().ok().filter(|t| **t != sweep_text).and_then(|t| foreign_sweep_file(t));
+        match read {
             Ok(existing) if existing != sweep_text && sweep_file_is_cut(&existing, &sweep_text) => {
                 let what = if path.exists() {
                     format!(
@@ -415,8 +418,8 @@ impl RunsFile {
                     format!("{CUT_SHORT}, not a whole sweep definition; {what}"),
                 ));
             }
-            Ok(existing) if existing != sweep_text && foreign_sweep_file(&existing).is_some() => {
-                return Err(ExperimentError::file(&sweep_path, foreign_sweep_file(&existing).unwrap_or_default()));
+            Ok(_) if foreign.is_some() => {
+                return Err(ExperimentError::file(&sweep_path, foreign.unwrap_or_default()));
             }
             Ok(existing) if existing != sweep_text => {
                 return Err(ExperimentError::file(

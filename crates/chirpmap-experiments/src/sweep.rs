@@ -207,6 +207,11 @@ impl SweepDef {
                 err(format!("more than {MAX_CONFIGS} configurations (the product of the values' counts)"))
             })?;
         self.check_size(n_configs)?;
+        chirpmap_core::scene::check_scene_tables(&self.base).map_err(|m| err(format!("base scene: {m}")))?;
+        // The `toml` crate puts the key on a line of its own: one line.
+        let one_line = |e: toml::de::Error| {
+            chirpmap_core::error::short_message(&e.to_string().split_whitespace().collect::<Vec<_>>().join(" "))
+        };
         let mut configs = Vec::with_capacity(n_configs);
         for index in 0..n_configs {
             let mut rem = index;
@@ -215,7 +220,6 @@ impl SweepDef {
                 choice[k] = rem % p.values.len();
                 rem /= p.values.len();
             }
-            chirpmap_core::scene::check_scene_tables(&self.base).map_err(|m| err(format!("base scene: {m}")))?;
             let mut value = toml::Value::Table(self.base.clone());
             // Start from the fully defaulted base so paths into defaults exist.
             let base: Scene = value.clone().try_into().map_err(|e| err(format!("base scene: {e}")))?;
@@ -224,10 +228,6 @@ impl SweepDef {
                 set_path(&mut value, &p.path, &p.values[c])
                     .map_err(|m| err(format!("parameter {:?} (path {:?}): {m}", p.name, p.path)))?;
             }
-            // The `toml` crate puts the key on a line of its own: one line.
-            let one_line = |e: toml::de::Error| {
-                chirpmap_core::error::short_message(&e.to_string().split_whitespace().collect::<Vec<_>>().join(" "))
-            };
             if let toml::Value::Table(t) = &value {
                 chirpmap_core::scene::check_scene_tables(t).map_err(|m| err(format!("configuration {index}: {m}")))?;
             }

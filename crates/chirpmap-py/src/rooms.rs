@@ -15,10 +15,6 @@ use chirpmap::{ChirpSpec, EchoOptions, Point, RoomGeometry, RoomReport};
 /// Largest `max_echoes` (per chirp) the facade accepts ([`EchoOptions::validate`]).
 pub const MAX_ECHOES_LIMIT: usize = 1000;
 
-/// Largest Δd searched in an impulse response when none is given (m), as
-/// `range --input rir`: 60 m, or what the response's length covers.
-pub use chirpmap::RIR_DEFAULT_MAX_DELTA_D_M;
-
 /// What the samples hold: a recording of chirps, or an impulse response
 /// whose time zero is the emission (`range --input wav|rir`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
