@@ -99,11 +99,20 @@ pub fn write_npy_to(w: &mut impl std::io::Write, grid: &Grid) -> Result<()> {
     // is looked up only then.
     let overflows = |v: f64| (v as f32).is_infinite() & v.is_finite();
     for (c, cells) in grid.data.chunks(NPY_CHUNK_CELLS).enumerate() {
-        let mut overflow = false;
-        for (dst, &v) in buf.chunks_exact_mut(4).zip(cells) {
-            overflow |= overflows(v);
-            dst.copy_from_slice(&(v as f32).to_le_bytes());
-        }
+        let dst = &mut buf[..cells.len() * 4];
+        // On the CPU's widest vectors (pulp's runtime dispatch; the
+        // conversion is exact IEEE rounding at every width).
+        let overflow = pulp::Arch::new().dispatch(
+            #[inline(always)]
+            || {
+                let mut overflow = false;
+                for (dst, &v) in dst.chunks_exact_mut(4).zip(cells) {
+                    overflow |= overflows(v);
+                    dst.copy_from_slice(&(v as f32).to_le_bytes());
+                }
+                overflow
+            },
+        );
         if let Some(k) = overflow.then(|| cells.iter().position(|&v| overflows(v))).flatten() {
             let k = c * NPY_CHUNK_CELLS + k;
             let (i, j) = (k % grid.spec.nx, k / grid.spec.nx);
@@ -145,14 +154,20 @@ fn occupancy_divisor(grid: &Grid, values: MapValues) -> Result<f64> {
             // Eight independent lanes: one accumulator's select chain did not
             // vectorise (ros_map was ~5 % of the default run's CPU; issue 14).
             const LANES: usize = 8;
-            let (mut max, mut all_ok) = ([0.0f64; LANES], [true; LANES]);
             let mut lanes = grid.data.chunks_exact(LANES);
-            for x in &mut lanes {
-                for k in 0..LANES {
-                    max[k] = if x[k] > max[k] { x[k] } else { max[k] };
-                    all_ok[k] &= ok(x[k]);
-                }
-            }
+            let (max, all_ok) = pulp::Arch::new().dispatch(
+                #[inline(always)]
+                || {
+                    let (mut max, mut all_ok) = ([0.0f64; LANES], [true; LANES]);
+                    for x in &mut lanes {
+                        for k in 0..LANES {
+                            max[k] = if x[k] > max[k] { x[k] } else { max[k] };
+                            all_ok[k] &= ok(x[k]);
+                        }
+                    }
+                    (max, all_ok)
+                },
+            );
             let (max, all_ok) = lanes
                 .remainder()
                 .iter()
@@ -183,6 +198,7 @@ fn grey_of(p: f64) -> u8 {
 /// first) it is `grey_of` bit for bit: `x + 2⁵² − 2⁵²` rounds `x` ∈ [0, 255]
 /// to an integer exactly, one step down when it rounded up gives `trunc(x)`,
 /// and the integer's value sits in the low bits of `g + 2⁵²`.
+#[inline(always)]
 fn grey_row(dst: &mut [u8], row: &[f64], divisor: f64) {
     const TWO_52: f64 = 4_503_599_627_370_496.0;
     for (d, &v) in dst.iter_mut().zip(row) {
@@ -214,14 +230,22 @@ pub fn ros_map(grid: &Grid, values: MapValues, image: &str) -> Result<RosMap> {
     let mut pgm = format!("P5\n{} {}\n255\n", spec.nx, spec.ny).into_bytes();
     let header = pgm.len();
     pgm.resize(header + grid.data.len(), 0);
-    // Rows top (y_max) first; plain slice loops, which vectorise (issue 14).
-    for (dst, row) in pgm[header..].chunks_exact_mut(spec.nx).zip(grid.data.chunks_exact(spec.nx).rev()) {
-        if divisor > 0.0 {
-            grey_row(dst, row, divisor);
-        } else {
-            dst.fill(grey_of(0.0));
-        }
-    }
+    // Rows top (y_max) first; plain slice loops, which vectorise (issue 14),
+    // compiled for the CPU's widest vectors (pulp's runtime dispatch; the
+    // arithmetic is exact IEEE at every width, so the bytes are the same).
+    let rows = pgm[header..].chunks_exact_mut(spec.nx).zip(grid.data.chunks_exact(spec.nx).rev());
+    pulp::Arch::new().dispatch(
+        #[inline(always)]
+        || {
+            for (dst, row) in rows {
+                if divisor > 0.0 {
+                    grey_row(dst, row, divisor);
+                } else {
+                    dst.fill(grey_of(0.0));
+                }
+            }
+        },
+    );
     let mut yaml = String::new();
     // Debug formatting keeps a decimal point ("-50.0"), so YAML reads floats.
     let _ = writeln!(yaml, "image: {image}");
