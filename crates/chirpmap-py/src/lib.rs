@@ -5,11 +5,12 @@
 //! used here and wraps the results in documented dataclasses.
 //!
 //! Arrays leave without copies where Rust owns the buffer (a grid's
-//! `Vec<f64>` becomes the `(ny, nx)` array's memory), enter as read-only
-//! borrows of contiguous numpy buffers, and every step runs with the
-//! interpreter detached (`Python::detach`, pyo3 ≥ 0.26), so other Python
-//! threads run meanwhile. Every failure is a `ValueError` carrying the
-//! facade's message; nothing here panics on user data.
+//! `Vec<f64>` becomes the `(ny, nx)` array's memory). Inputs are checked in
+//! place (read-only borrows of contiguous numpy buffers) and copied once
+//! for the work, which runs on a thread of its own while the calling thread
+//! waits with the interpreter detached ([`interruptible`]): other Python
+//! threads run meanwhile, and Ctrl-C raises `KeyboardInterrupt` at once. Every failure is a `ValueError`
+//! carrying the facade's message; nothing here panics on user data.
 //!
 //! `room_echoes` (issue 10, "every reflection") is `chirpmap range
 //! --echoes`; its plain-Rust half, which assembles the facade's inputs as
@@ -23,12 +24,54 @@ use chirpmap::{ChirpSpec, MapOptions, MapResult, Point, RangeGeometry};
 use convert::{SceneSource, error_text};
 use numpy::ndarray::Array2;
 use numpy::{IntoPyArray, PyArray1, PyReadonlyArray1, PyReadonlyArray2};
-use pyo3::exceptions::PyValueError;
+use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
 fn value_error(msg: impl Into<String>) -> PyErr {
     PyValueError::new_err(msg.into())
+}
+
+/// How often a waiting call runs Python's signal handlers.
+const SIGNAL_POLL: std::time::Duration = std::time::Duration::from_millis(50);
+
+/// Runs `work` on a thread of its own; this thread waits with the
+/// interpreter detached and wakes every [`SIGNAL_POLL`] to run Python's
+/// signal handlers (`Python::check_signals`). So Ctrl-C raises
+/// `KeyboardInterrupt` within 50 ms: the pipeline has no points at which
+/// it could check for signals itself (a call used to be uninterruptible
+/// until it returned). The interrupted work runs on to its end in the
+/// background and its result is dropped (it owns its inputs, and touches
+/// no Python object and no file). Waiting costs nothing when no signal
+/// comes: the result is taken the moment it is sent.
+fn interruptible<T: Send + 'static>(
+    py: Python<'_>,
+    work: impl FnOnce() -> Result<T, String> + Send + 'static,
+) -> PyResult<T> {
+    use std::sync::mpsc::RecvTimeoutError;
+    let (tx, mut rx) = std::sync::mpsc::sync_channel(1);
+    std::thread::Builder::new()
+        .name("chirpmap".into())
+        .spawn(move || {
+            // The receiver is gone when the call was interrupted.
+            let _ = tx.send(work());
+        })
+        .map_err(|e| PyRuntimeError::new_err(format!("cannot start a thread for the computation: {e}")))?;
+    loop {
+        // The receiver is moved in and out: a borrow of it is not `Send`.
+        let (back, got) = py.detach(move || {
+            let got = rx.recv_timeout(SIGNAL_POLL);
+            (rx, got)
+        });
+        rx = back;
+        match got {
+            Ok(result) => return result.map_err(value_error),
+            Err(RecvTimeoutError::Timeout) => py.check_signals()?,
+            Err(RecvTimeoutError::Disconnected) => {
+                return Err(PyRuntimeError::new_err("chirpmap's computation stopped without a result (a panic)"));
+            }
+        }
+    }
 }
 
 /// Refuses a sample that is not finite or beyond ±10⁶ × full scale, naming
@@ -63,13 +106,13 @@ fn read_payload(kind: &str, payload: &Bound<'_, PyAny>) -> PyResult<Payload> {
     })
 }
 
-fn scene_source<'a>(kind: &str, payload: &'a Payload) -> PyResult<SceneSource<'a>> {
+fn scene_source<'a>(kind: &str, payload: &'a Payload) -> Result<SceneSource<'a>, String> {
     match (kind, payload) {
         ("default", _) => Ok(SceneSource::Default),
         ("toml", Payload::Text(t)) => Ok(SceneSource::Toml(t)),
         ("json", Payload::Text(t)) => Ok(SceneSource::Json(t)),
         ("path", Payload::Path(p)) => Ok(SceneSource::Path(p)),
-        (other, _) => Err(value_error(format!("unknown scene kind {other:?}"))),
+        (other, _) => Err(format!("unknown scene kind {other:?}")),
     }
 }
 
@@ -120,19 +163,17 @@ fn simulate<'py>(
     seed: Option<u64>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let payload = read_payload(scene_kind, scene_payload)?;
-    let src = scene_source(scene_kind, &payload)?;
+    let kind = scene_kind.to_owned();
     if seed.is_some_and(|s| s > i64::MAX as u64) {
         return Err(value_error("seed: must be between 0 and 2^63 - 1 (scene.toml records it as a TOML integer)"));
     }
-    let run = py
-        .detach(|| -> Result<_, String> {
-            let (mut scene, _, name) = convert::load_scene(src)?;
-            if let Some(s) = seed {
-                scene.seed = s;
-            }
-            chirpmap::simulate(&scene).map_err(|e| format!("{name}: {}", error_text(&e)))
-        })
-        .map_err(value_error)?;
+    let run = interruptible(py, move || {
+        let (mut scene, _, name) = convert::load_scene(scene_source(&kind, &payload)?)?;
+        if let Some(s) = seed {
+            scene.seed = s;
+        }
+        chirpmap::simulate(&scene).map_err(|e| format!("{name}: {}", error_text(&e)))
+    })?;
     let d = PyDict::new(py);
     let (rows, cols) = convert::echoes_to_rows(&run.output.echoes);
     d.set_item("echoes", table(py, rows, cols)?)?;
@@ -175,13 +216,12 @@ fn map_echoes<'py>(
     let params =
         convert::mapping_params(cell, keep_top, min_of_max, peak_radius, ellipse_points, mapper, evidence_json)
             .map_err(value_error)?;
-    let map = py
-        .detach(|| -> Result<_, String> {
-            let echoes = convert::echoes_from_rows(data, cols, sigma)?;
-            let opts = MapOptions { params, bounds, ..MapOptions::default() };
-            chirpmap::map_echoes(&echoes, &[], &opts).map_err(|e| error_text(&e))
-        })
-        .map_err(value_error)?;
+    let (data, sigma) = (data.to_vec(), sigma.map(<[f64]>::to_vec));
+    let map = interruptible(py, move || {
+        let echoes = convert::echoes_from_rows(&data, cols, sigma.as_deref())?;
+        let opts = MapOptions { params, bounds, ..MapOptions::default() };
+        chirpmap::map_echoes(&echoes, &[], &opts).map_err(|e| error_text(&e))
+    })?;
     let d = PyDict::new(py);
     map_fields(py, &d, map)?;
     Ok(d)
@@ -197,45 +237,43 @@ fn synth<'py>(
     scene_payload: &Bound<'py, PyAny>,
 ) -> PyResult<(Bound<'py, PyAny>, u32, Bound<'py, PyList>)> {
     let payload = read_payload(scene_kind, scene_payload)?;
-    let src = scene_source(scene_kind, &payload)?;
-    let (samples, rate, poses) = py
-        .detach(|| -> Result<_, String> {
-            let (scene, cfg, name) = convert::load_scene(src)?;
-            // The poses are handed out as (m, 3) arrays, built while the
-            // rendering's own poses are alive: counted twice against the
-            // cap (a scene just under it peaked at twice its estimate).
-            let (_, poses_per_listener) = chirpmap::audio::synth::synth_lengths(&scene, &cfg);
-            let copy = scene.listeners.len() as f64 * poses_per_listener * 24.0;
-            chirpmap::audio::error::check_memory(
-                || format!("{name}: the rendering and its poses as arrays"),
-                (chirpmap::audio::synth::synth_memory_bytes(&scene, &cfg) + copy) as u128,
-                "fewer chirps, a lower sample rate or a longer pose_period_s",
-            )
-            .map_err(|e| e.to_string())?;
-            let syn = chirpmap::synth(&scene, &cfg).map_err(|e| format!("{name}: {}", error_text(&e)))?;
-            let n_listeners = syn.channels.len();
-            let n = syn.channels.first().map_or(0, Vec::len);
-            if syn.channels.iter().any(|c| c.len() != n) {
-                return Err(format!("{name}: the listeners' channels differ in length"));
+    let kind = scene_kind.to_owned();
+    let (samples, rate, poses) = interruptible(py, move || {
+        let (scene, cfg, name) = convert::load_scene(scene_source(&kind, &payload)?)?;
+        // The poses are handed out as (m, 3) arrays, built while the
+        // rendering's own poses are alive: counted twice against the
+        // cap (a scene just under it peaked at twice its estimate).
+        let (_, poses_per_listener) = chirpmap::audio::synth::synth_lengths(&scene, &cfg);
+        let copy = scene.listeners.len() as f64 * poses_per_listener * 24.0;
+        chirpmap::audio::error::check_memory(
+            || format!("{name}: the rendering and its poses as arrays"),
+            (chirpmap::audio::synth::synth_memory_bytes(&scene, &cfg) + copy) as u128,
+            "fewer chirps, a lower sample rate or a longer pose_period_s",
+        )
+        .map_err(|e| e.to_string())?;
+        let syn = chirpmap::synth(&scene, &cfg).map_err(|e| format!("{name}: {}", error_text(&e)))?;
+        let n_listeners = syn.channels.len();
+        let n = syn.channels.first().map_or(0, Vec::len);
+        if syn.channels.iter().any(|c| c.len() != n) {
+            return Err(format!("{name}: the listeners' channels differ in length"));
+        }
+        let mut channels = syn.channels;
+        let samples = if n_listeners == 1 {
+            // One listener: the channel's buffer itself, as an (n, 1) array.
+            Array2::from_shape_vec((n, 1), channels.pop().unwrap_or_default())
+        } else {
+            // Several: one buffer (L, n), handed out transposed (a view).
+            let mut flat = Vec::with_capacity(n * n_listeners);
+            for c in channels {
+                flat.extend(c);
             }
-            let mut channels = syn.channels;
-            let samples = if n_listeners == 1 {
-                // One listener: the channel's buffer itself, as an (n, 1) array.
-                Array2::from_shape_vec((n, 1), channels.pop().unwrap_or_default())
-            } else {
-                // Several: one buffer (L, n), handed out transposed (a view).
-                let mut flat = Vec::with_capacity(n * n_listeners);
-                for c in channels {
-                    flat.extend(c);
-                }
-                Array2::from_shape_vec((n_listeners, n), flat).map(Array2::reversed_axes)
-            }
-            .map_err(|e| e.to_string())?;
-            let poses: Vec<Vec<f64>> =
-                syn.poses.iter().map(|p| p.iter().flat_map(|&(t, q)| [t, q.x, q.y]).collect()).collect();
-            Ok((samples, syn.sample_rate_hz, poses))
-        })
-        .map_err(value_error)?;
+            Array2::from_shape_vec((n_listeners, n), flat).map(Array2::reversed_axes)
+        }
+        .map_err(|e| e.to_string())?;
+        let poses: Vec<Vec<f64>> =
+            syn.poses.iter().map(|p| p.iter().flat_map(|&(t, q)| [t, q.x, q.y]).collect()).collect();
+        Ok((samples, syn.sample_rate_hz, poses))
+    })?;
     let pose_list = PyList::empty(py);
     for p in poses {
         pose_list.append(table(py, p, 3)?)?;
@@ -286,14 +324,14 @@ fn range(
     };
     let x = samples.as_slice().map_err(|_| value_error("samples must be a contiguous array"))?;
     check_samples(x, "samples")?;
-    py.detach(|| -> Result<String, String> {
+    let x = x.to_vec();
+    interruptible(py, move || {
         geom.validate().map_err(|e| error_text(&e))?;
-        let prep = chirpmap::prepare(x.to_vec(), sample_rate, &chirp).map_err(|e| error_text(&e))?;
+        let prep = chirpmap::prepare(x, sample_rate, &chirp).map_err(|e| error_text(&e))?;
         let report = chirpmap::range(&prep, &methods, &geom).map_err(|e| error_text(&e))?;
         let summary = report.summary(&prep, &chirp, &geom, primary);
         serde_json::to_string(&summary).map_err(|e| e.to_string())
     })
-    .map_err(value_error)
 }
 
 /// Echoes of a moving listener's recording (`chirpmap map --wav`): the
@@ -348,13 +386,12 @@ fn echoes_from_recording<'py>(
     };
     let x = samples.as_slice().map_err(|_| value_error("samples must be a contiguous array"))?;
     check_samples(x, "samples")?;
-    let got = py
-        .detach(|| -> Result<_, String> {
-            let track = chirpmap::PoseTrack::new(rows).map_err(|e| format!("poses: {}", error_text(&e)))?;
-            let prep = chirpmap::prepare(x.to_vec(), sample_rate, &chirp).map_err(|e| error_text(&e))?;
-            chirpmap::RecordingEchoes::from_moving(&prep, &chirp, &track, &opts).map_err(|e| error_text(&e))
-        })
-        .map_err(value_error)?;
+    let x = x.to_vec();
+    let got = interruptible(py, move || {
+        let track = chirpmap::PoseTrack::new(rows).map_err(|e| format!("poses: {}", error_text(&e)))?;
+        let prep = chirpmap::prepare(x, sample_rate, &chirp).map_err(|e| error_text(&e))?;
+        chirpmap::RecordingEchoes::from_moving(&prep, &chirp, &track, &opts).map_err(|e| error_text(&e))
+    })?;
     let (rows, cols) = convert::echoes_to_rows(&got.echoes);
     Ok((table(py, rows, cols)?, got.chirps, got.chirps_without_pose))
 }
@@ -413,13 +450,12 @@ fn room_echoes<'py>(
     if let Some(c) = cal {
         check_samples(c, "calibration")?;
     }
-    let (report, echoes) = py
-        .detach(|| -> Result<_, String> {
-            let report = rooms::room_report(x, sample_rate, input, &chirp, &geom, opts, cal)?;
-            let echoes = report.map_echoes(&geom, listener).map_err(|e| error_text(&e))?;
-            Ok((report, echoes))
-        })
-        .map_err(value_error)?;
+    let (x, cal) = (x.to_vec(), cal.map(<[f32]>::to_vec));
+    let (report, echoes) = interruptible(py, move || {
+        let report = rooms::room_report(x, sample_rate, input, &chirp, &geom, opts, cal)?;
+        let echoes = report.map_echoes(&geom, listener).map_err(|e| error_text(&e))?;
+        Ok((report, echoes))
+    })?;
     let d = PyDict::new(py);
     let (rows, cols) = convert::echoes_to_rows(&echoes);
     d.set_item("echoes", table(py, rows, cols)?)?;

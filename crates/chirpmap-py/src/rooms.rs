@@ -105,13 +105,13 @@ pub fn echo_options(
 /// bit (a recording is prepared in memory, which the facade guarantees
 /// equal to the CLI's streamed reading, [`RoomReport::from_wav_stream`]).
 pub fn room_report(
-    x: &[f32],
+    x: Vec<f32>,
     sample_rate_hz: f64,
     input: Input,
     chirp: &ChirpSpec,
     geom: &RoomGeometry,
     mut opts: EchoOptions,
-    calibration: Option<&[f32]>,
+    calibration: Option<Vec<f32>>,
 ) -> Result<RoomReport, String> {
     if !(sample_rate_hz.is_finite() && sample_rate_hz > 0.0) {
         return Err(format!("sample_rate: must be finite and > 0 Hz, got {sample_rate_hz}"));
@@ -121,8 +121,8 @@ pub fn room_report(
             return Err("calibration: the channel is silent (every sample is zero)".into());
         }
         let response = match input {
-            Input::Rir => chirpmap::calibration_response_rir(cx, sample_rate_hz, &opts),
-            Input::Recording => chirpmap::prepare_room(cx.to_vec(), sample_rate_hz, chirp)
+            Input::Rir => chirpmap::calibration_response_rir(&cx, sample_rate_hz, &opts),
+            Input::Recording => chirpmap::prepare_room(cx, sample_rate_hz, chirp)
                 .and_then(|prep| chirpmap::calibration_response(&prep, &opts)),
         };
         opts.calibration = Some(response.map_err(|e| format!("calibration: {}", error_text(&e)))?);
@@ -131,10 +131,11 @@ pub fn room_report(
         Input::Rir => {
             let a = chirp.speed_of_sound_mps;
             chirpmap::rir_max_delta_d(chirp.max_delta_d_m, a, x.len(), sample_rate_hz)
-                .and_then(|max_dd| chirpmap::rir_echoes(x, sample_rate_hz, a, max_dd, geom, &opts))
+                .and_then(|max_dd| chirpmap::rir_echoes(&x, sample_rate_hz, a, max_dd, geom, &opts))
         }
-        Input::Recording => chirpmap::prepare_room(x.to_vec(), sample_rate_hz, chirp)
-            .and_then(|prep| chirpmap::room_echoes(&prep, geom, &opts)),
+        Input::Recording => {
+            chirpmap::prepare_room(x, sample_rate_hz, chirp).and_then(|prep| chirpmap::room_echoes(&prep, geom, &opts))
+        }
     };
     report.map_err(|e| error_text(&e))
 }
@@ -200,20 +201,22 @@ mod tests {
         let geom = geometry([0.0, 0.0], [1.0, 0.0], None, None, None).expect("valid");
         let opts = EchoOptions::default();
         let silent = vec![0.0f32; 9600];
-        let err = room_report(&silent, 48_000.0, Input::Recording, &chirp(), &geom, opts.clone(), None)
+        let err = room_report(silent.clone(), 48_000.0, Input::Recording, &chirp(), &geom, opts.clone(), None)
             .expect_err("silent recording");
         assert!(err.contains("silent"), "{err}");
-        let err = room_report(&silent, 48_000.0, Input::Rir, &chirp(), &geom, opts.clone(), None).expect_err("rir");
+        let err =
+            room_report(silent.clone(), 48_000.0, Input::Rir, &chirp(), &geom, opts.clone(), None).expect_err("rir");
         assert!(err.contains("impulse response is silent"), "{err}");
         let mut click = vec![0.0f32; 9600];
         click[100] = 1.0;
-        let err = room_report(&click, 48_000.0, Input::Rir, &chirp(), &geom, opts.clone(), Some(&silent))
+        let err = room_report(click.clone(), 48_000.0, Input::Rir, &chirp(), &geom, opts.clone(), Some(silent))
             .expect_err("silent calibration");
         assert!(err.starts_with("calibration: "), "{err}");
-        let err = room_report(&click, f64::NAN, Input::Rir, &chirp(), &geom, opts.clone(), None).expect_err("rate");
-        assert!(err.starts_with("sample_rate: "), "{err}");
         let err =
-            room_report(&click[..101], 48_000.0, Input::Recording, &chirp(), &geom, opts, None).expect_err("short");
+            room_report(click.clone(), f64::NAN, Input::Rir, &chirp(), &geom, opts.clone(), None).expect_err("rate");
+        assert!(err.starts_with("sample_rate: "), "{err}");
+        let err = room_report(click[..101].to_vec(), 48_000.0, Input::Recording, &chirp(), &geom, opts, None)
+            .expect_err("short");
         assert!(err.starts_with("duration: "), "{err}");
     }
 
@@ -226,7 +229,7 @@ mod tests {
         h[200] = 1.0;
         h[200 + 240] = 0.5;
         let geom = geometry([0.0, 0.0], [1.0, 0.0], None, None, None).expect("valid");
-        let r = room_report(&h, fs, Input::Rir, &chirp(), &geom, EchoOptions::default(), None).expect("report");
+        let r = room_report(h, fs, Input::Rir, &chirp(), &geom, EchoOptions::default(), None).expect("report");
         let (chirps, ranks, pd, db, planes) = room_columns(&r);
         assert_eq!((chirps.as_slice(), ranks.as_slice(), planes.as_slice()), (&[0][..], &[1][..], &[""][..]));
         assert!((pd[0] - 240.0 / fs * 343.0).abs() < 0.01, "{pd:?}");

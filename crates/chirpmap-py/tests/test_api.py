@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import os
 import pathlib
+import signal
+import threading
 import time
 
 import numpy as np
@@ -238,3 +240,33 @@ def test_mapping_releases_the_gil():
         n *= 2
     assert once > 0.1, f"the call took only {once:.4f} s with {n} echoes: too short to tell"
     assert_main_thread_runs_during(lambda: chirpmap.map_echoes(echoes, bounds=(-40, -40, 40, 40)))
+
+
+def test_ctrl_c_interrupts_a_call():
+    """SIGINT during a call raises KeyboardInterrupt at once, not when the
+    call returns (the pipeline has no points at which it checks for signals;
+    the call waits for it on another thread and runs the signal handlers
+    every 50 ms). The package keeps working afterwards."""
+    rng = np.random.default_rng(11)
+    n = 20000
+    while True:
+        echoes = np.column_stack(
+            [np.zeros(n), np.zeros(n), rng.uniform(-5, 5, n), np.full(n, 10.0), rng.uniform(12, 30, n)]
+        )
+        started = time.perf_counter()
+        expected = chirpmap.map_echoes(echoes, bounds=(-40, -40, 40, 40))
+        once = time.perf_counter() - started
+        if once > 0.8 or n >= 5_120_000:
+            break
+        n *= 2
+    assert once > 0.8, f"the call took only {once:.3f} s with {n} echoes: too short to tell"
+    timer = threading.Timer(0.1, os.kill, (os.getpid(), signal.SIGINT))
+    started = time.perf_counter()
+    timer.start()
+    with pytest.raises(KeyboardInterrupt):
+        chirpmap.map_echoes(echoes, bounds=(-40, -40, 40, 40))
+    took = time.perf_counter() - started
+    timer.join()
+    assert took < 0.5 * once, f"KeyboardInterrupt came after {took:.3f} s; the whole call takes {once:.3f} s"
+    again = chirpmap.map_echoes(echoes[:1000], bounds=(-40, -40, 40, 40))
+    assert again.grid.shape == expected.grid.shape

@@ -18,8 +18,9 @@ bit, for the same inputs:
 Functions: :func:`simulate`, :func:`map_echoes`, :func:`synth`, :func:`range`,
 :func:`echoes_from_recording`, :func:`room_echoes`.
 Arrays come back as numpy arrays that own Rust's buffers (no copies); every
-long step runs with the GIL released. Bad input raises :class:`ValueError`
-with the CLI's message.
+long step runs with the GIL released, and Ctrl-C interrupts it within 50 ms
+(the interrupted work finishes in the background and is dropped). Bad input
+raises :class:`ValueError` with the CLI's message.
 """
 
 from __future__ import annotations
@@ -244,7 +245,7 @@ def map_echoes(
             echoes.csv (:data:`ECHO_COLUMNS`): ``source_x, source_y,
             listener_x, listener_y, delta_d`` then optionally ``weight``
             (default 1), ``t`` (s), ``listener`` (integer id) and ``sigma_m``
-            (m, NaN = none). A C-contiguous float64 array is read in place.
+            (m, NaN = none). Copied once, as float64.
         bounds: grid bounds ``(x_min, y_min, x_max, y_max)`` in m; ``None``
             covers every ellipse (snapped outward to whole cells, plus one).
         cell: grid cell side (m). Paper: 0.1.
