@@ -220,25 +220,31 @@ def test_synth_shapes_several_listeners():
     assert one == chirpmap.range(np.ascontiguousarray(samples[:, 1]), rate, (0, 0), (-2.0, 0.5))
 
 
-def test_mapping_releases_the_gil():
-    """While one thread maps, the main thread runs Python. With the GIL held
-    for the whole call it could run at most one switch interval (5 ms) of
-    it; released, it runs throughout."""
-    rng = np.random.default_rng(7)
-    # Enough echoes for the call to last > 0.1 s on this machine (the mapper's
-    # speed changes between versions and machines): double until it does.
+def slow_echoes(seed: int, at_least_s: float, max_n: int):
+    """Echoes whose map takes more than `at_least_s` on this machine (the
+    mapper's speed changes between versions and machines): doubled until it
+    does. Returns them, the map and the time it took."""
+    rng = np.random.default_rng(seed)
     n = 20000
     while True:
         echoes = np.column_stack(
             [np.zeros(n), np.zeros(n), rng.uniform(-5, 5, n), np.full(n, 10.0), rng.uniform(12, 30, n)]
         )
         started = time.perf_counter()
-        chirpmap.map_echoes(echoes, bounds=(-40, -40, 40, 40))
+        result = chirpmap.map_echoes(echoes, bounds=(-40, -40, 40, 40))
         once = time.perf_counter() - started
-        if once > 0.1 or n >= 2_560_000:
+        if once > at_least_s or n >= max_n:
             break
         n *= 2
-    assert once > 0.1, f"the call took only {once:.4f} s with {n} echoes: too short to tell"
+    assert once > at_least_s, f"the call took only {once:.4f} s with {n} echoes: too short to tell"
+    return echoes, result, once
+
+
+def test_mapping_releases_the_gil():
+    """While one thread maps, the main thread runs Python. With the GIL held
+    for the whole call it could run at most one switch interval (5 ms) of
+    it; released, it runs throughout."""
+    echoes, _, _ = slow_echoes(7, 0.1, 2_560_000)
     assert_main_thread_runs_during(lambda: chirpmap.map_echoes(echoes, bounds=(-40, -40, 40, 40)))
 
 
@@ -247,19 +253,7 @@ def test_ctrl_c_interrupts_a_call():
     call returns (the pipeline has no points at which it checks for signals;
     the call waits for it on another thread and runs the signal handlers
     every 50 ms). The package keeps working afterwards."""
-    rng = np.random.default_rng(11)
-    n = 20000
-    while True:
-        echoes = np.column_stack(
-            [np.zeros(n), np.zeros(n), rng.uniform(-5, 5, n), np.full(n, 10.0), rng.uniform(12, 30, n)]
-        )
-        started = time.perf_counter()
-        expected = chirpmap.map_echoes(echoes, bounds=(-40, -40, 40, 40))
-        once = time.perf_counter() - started
-        if once > 0.8 or n >= 5_120_000:
-            break
-        n *= 2
-    assert once > 0.8, f"the call took only {once:.3f} s with {n} echoes: too short to tell"
+    echoes, expected, once = slow_echoes(11, 0.8, 5_120_000)
     timer = threading.Timer(0.1, os.kill, (os.getpid(), signal.SIGINT))
     started = time.perf_counter()
     timer.start()
