@@ -276,6 +276,7 @@ fn plot_chirp(
     let frame = Ranger::gap_frame_len(tpl);
     let f_max = tpl.chirp.f_start_hz().max(tpl.chirp.f_end_hz()) * 1.15;
     let (spectrogram_path, spectrum_path) = (out.path(fmt.spectrogram())?, out.path(fmt.spectrum())?);
+    let (spectrogram_shown, spectrum_shown) = (out.shown(fmt.spectrogram()), out.shown(fmt.spectrum()));
     // The two figures are independent: drawn at the same time.
     let spectrogram = || {
         let mut cache = FftCache::default();
@@ -319,8 +320,8 @@ fn plot_chirp(
         )
     };
     let (first, second) = rayon::join(spectrogram, spectrum);
-    first?;
-    second
+    first.with_context(|| format!("cannot write {}", spectrogram_shown.display()))?;
+    second.with_context(|| format!("cannot write {}", spectrum_shown.display()))
 }
 
 /// Reads one channel of a WAV (clipping warned about, silence refused with a hint).
@@ -527,6 +528,7 @@ fn run_echoes(args: &RangeArgs) -> Result<()> {
     }
     let marks: Vec<(f64, String)> =
         report.clusters.iter().map(|c| (c.path_delta_m, c.plane.map_or(String::new(), str::to_string))).collect();
+    let shown = out.shown(echogram_fig);
     crate::plot_audio::render_echogram(
         &out.path(echogram_fig)?,
         &format!(
@@ -537,7 +539,8 @@ fn run_echoes(args: &RangeArgs) -> Result<()> {
         &report.echogram,
         &marks,
         &report.predicted,
-    )?;
+    )
+    .with_context(|| format!("cannot write {}", shown.display()))?;
     let n_low = report.echoes.iter().filter(|e| e.path_delta_m < 0.45).count();
     let summary = json!({
         "method": "matched",

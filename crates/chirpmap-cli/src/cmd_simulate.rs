@@ -7,7 +7,7 @@ use crate::mapout::{PlotFormat, map_outputs, map_summary, provenance, write_map}
 use crate::output::Staged;
 use crate::plot::{MapPlot, SpectrumPlot, render_spectrum};
 use crate::tables::fmt_score;
-use anyhow::{Result, anyhow};
+use anyhow::{Context, Result, anyhow};
 use chirpmap::sim::{BIN_HZ, Measurement, Resolved, SimOutput};
 use chirpmap::{Point, Scene};
 use clap::Args;
@@ -210,8 +210,8 @@ fn write_spectra(staged: &mut Staged, r: &Resolved, out: &SimOutput, fmt: PlotFo
         .max_by_key(|m| (echoes_of(m), std::cmp::Reverse(m.tick)));
     let (f_a, f_b) = (r.sweep.f_start_hz(), r.sweep.f_end_hz());
     let f_range_hz = (f_a.min(f_b) - 100.0, f_a.max(f_b) + 100.0);
-    let png = staged.path(fmt.spectrum())?;
-    match best {
+    let (png, shown) = (staged.path(fmt.spectrum())?, staged.shown(fmt.spectrum()));
+    let drawn = match best {
         Some(m) => {
             let bins: Vec<(f64, f64)> = m.bins.iter().map(|&(b, v)| (b as f64 * BIN_HZ, v)).collect();
             let rows = peak_rows(r, m);
@@ -247,5 +247,6 @@ fn write_spectra(staged: &mut Staged, r: &Resolved, out: &SimOutput, fmt: PlotFo
                 reflected_hz: &[],
             },
         ),
-    }
+    };
+    drawn.with_context(|| format!("cannot write {}", shown.display()))
 }

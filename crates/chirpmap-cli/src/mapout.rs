@@ -6,7 +6,7 @@ use crate::mapdata::{MapValues, ros_map, write_npy_to};
 use crate::output::Staged;
 use crate::plot::{ColourMap, MapPlot, MapStyle, render_map_with};
 use crate::tables::{highlights_csv, surfaces_csv};
-use anyhow::Result;
+use anyhow::{Context, Result};
 use chirpmap::{Evaluation, Grid, MapResult, MapperKind};
 use clap::ValueEnum;
 use serde_json::{Value, json};
@@ -64,12 +64,12 @@ pub fn write_map(out: &mut Staged, map: &MapResult, plot: &MapPlot, fmt: PlotFor
             MapStyle { surfaces: &drawn, colour_map: ColourMap::default(), value_label: Some("log-odds of occupancy") }
         }
     };
-    let fig = out.path(fmt.map())?;
+    let (fig, shown) = (out.path(fmt.map())?, out.shown(fmt.map()));
     std::thread::scope(|scope| {
         let figure = scope.spawn(|| render_map_with(&fig, plot, &style));
         let data = write_map_data(out, map);
-        let figure = figure.join().map_err(|_| anyhow::anyhow!("drawing {} failed", fig.display()))?;
-        data.and(figure)
+        let figure = figure.join().map_err(|_| anyhow::anyhow!("drawing {} failed", shown.display()))?;
+        data.and(figure.with_context(|| format!("cannot write {}", shown.display())))
     })
 }
 
@@ -141,4 +141,36 @@ pub fn provenance() -> Value {
         // name such as `sc\xff.toml`); such bytes are recorded as U+FFFD.
         "command_line": std::env::args_os().map(|a| a.to_string_lossy().into_owned()).collect::<Vec<_>>(),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use chirpmap::{Echo, MapOptions, Point};
+
+    /// A figure that cannot be written is named where it would have landed,
+    /// not by the staging folder's path (gone by the time the user reads it).
+    #[test]
+    fn a_figure_that_cannot_be_written_is_named_where_it_lands() {
+        let echo = Echo::new(Point::new(0.0, 0.0), Point::new(2.0, 0.0), 3.0, 1.0, 0.0, 0).unwrap();
+        let map = chirpmap::map_echoes(&[echo], &[], &MapOptions::default()).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let out_dir = dir.path().join("out");
+        let mut out = Staged::dir(&out_dir, "test", &map_outputs(MapperKind::Paper, PlotFormat::Png), &[]).unwrap();
+        // A directory where the figure's file would be created.
+        std::fs::create_dir(out.path("map.png").unwrap()).unwrap();
+        let plot = MapPlot {
+            title: "t".into(),
+            grid: &map.grid,
+            highlights: &map.highlights,
+            sources: &[],
+            listener_positions: &[],
+            listener_radius_m: None,
+            obstacles: &[],
+        };
+        let e = format!("{:#}", write_map(&mut out, &map, &plot, PlotFormat::Png).unwrap_err());
+        let shown = out_dir.join("map.png");
+        assert!(e.starts_with(&format!("cannot write {}: ", shown.display())), "{e}");
+        assert!(!e.contains(".chirpmap-partial"), "{e}");
+    }
 }

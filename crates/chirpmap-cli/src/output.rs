@@ -400,10 +400,17 @@ impl Staged {
         Ok(self.staging.join(name))
     }
 
+    /// Where the output `name` lands, as errors name it (not the staging
+    /// path [`Staged::path`] gives, which is gone by the time a user reads
+    /// the message).
+    pub fn shown(&self, name: &str) -> PathBuf {
+        self.dir.join(name)
+    }
+
     /// Writes the declared output `name`.
     pub fn write(&mut self, name: &str, contents: impl AsRef<[u8]>) -> Result<()> {
         let p = self.path(name)?;
-        std::fs::write(&p, contents).with_context(|| format!("cannot write {}", self.dir.join(name).display()))
+        std::fs::write(&p, contents).with_context(|| format!("cannot write {}", self.shown(name).display()))
     }
 
     /// Writes the declared output `name` through `write`, which gets the
@@ -411,7 +418,7 @@ impl Staged {
     /// errors name the file; `write`'s own errors pass through.
     pub fn write_with(&mut self, name: &str, write: impl FnOnce(&mut File) -> Result<()>) -> Result<()> {
         let p = self.path(name)?;
-        let cannot = || format!("cannot write {}", self.dir.join(name).display());
+        let cannot = || format!("cannot write {}", self.shown(name).display());
         let mut f = File::create(&p).with_context(cannot)?;
         write(&mut f).map_err(|e| if e.is::<std::io::Error>() { e.context(cannot()) } else { e })
     }

@@ -19,8 +19,9 @@ Functions: :func:`simulate`, :func:`map_echoes`, :func:`synth`, :func:`range`,
 :func:`echoes_from_recording`, :func:`room_echoes`.
 Arrays come back as numpy arrays that own Rust's buffers (no copies); every
 long step runs with the GIL released, and Ctrl-C interrupts it within 50 ms
-(the interrupted work finishes in the background and is dropped). Bad input
-raises :class:`ValueError` with the CLI's message.
+(the interrupted work finishes in the background and is dropped; the next
+call waits for it, with a :class:`RuntimeWarning`). Bad input raises
+:class:`ValueError` with the CLI's message.
 """
 
 from __future__ import annotations
