@@ -32,6 +32,12 @@ const FILE_MANIFEST: &str = ".chirpmap-files";
 const STAGING_PREFIX: &str = ".chirpmap-partial-";
 /// Held (locked) by the owner of a staging folder for as long as it runs.
 const LOCK_FILE: &str = "lock";
+/// The manifests a commit writes in its staging folder before moving them
+/// into place: named with [`STAGING_PREFIX`], which no output may have, so
+/// no staged output shares their names (an output named `manifest` was
+/// written over with the manifest).
+const STAGED_MANIFEST: &str = ".chirpmap-partial-manifest";
+const STAGED_MANIFEST_DURING_COMMIT: &str = ".chirpmap-partial-manifest-during-commit";
 /// Locked while a run looks at or changes what an output directory holds.
 const DIR_LOCK: &str = ".chirpmap-lock";
 
@@ -248,9 +254,6 @@ fn clean_debris(dir: &Path) {
     }
 }
 
-/// Removes a staging folder: its outputs first, its lock file last, so a
-/// removal cut short (a kill, a file appearing meanwhile) leaves a folder
-/// that still reads as debris, never one without its lock.
 /// Moves the staged file `from` to `to`, as `rename` does. Where `to` is a
 /// regular file, on Linux, the two are exchanged instead (`renameat2` with
 /// `RENAME_EXCHANGE`, as atomic as a rename), which leaves the replaced file
@@ -260,29 +263,43 @@ fn clean_debris(dir: &Path) {
 /// data out before it returns (its `auto_da_alloc` guard for programs that
 /// do not `fsync`): 3 ms for the default run's 4 MB map.npy, 5 ms of a
 /// `simulate` run into its own folder again, a tenth of the run (issue 14).
-/// An exchange is not a replacement, so nothing is written out. Where the
-/// file system cannot exchange (NFS, kernels before 3.15), a plain rename.
+/// An exchange is not a replacement, so nothing is written out (chirpmap
+/// does not `fsync`: after a power cut soon after a run, its outputs may be
+/// empty, as any program's that does not). Where the file system cannot
+/// exchange (NFS, kernels before 3.15), a plain rename.
+///
+/// What the exchange moved out must be a regular file: a directory put in
+/// `to`'s place after it was looked at is exchanged back and refused, as a
+/// rename onto it fails (a review made the gap wide enough to hit).
 fn move_into_place(from: &Path, to: &Path) -> std::io::Result<()> {
     #[cfg(target_os = "linux")]
     if std::fs::symlink_metadata(to).is_ok_and(|m| m.file_type().is_file()) {
         use rustix::fs::{CWD, RenameFlags, renameat_with};
         if renameat_with(CWD, from, CWD, to, RenameFlags::EXCHANGE).is_ok() {
-            return Ok(());
+            if std::fs::symlink_metadata(from).is_ok_and(|m| m.file_type().is_file()) {
+                return Ok(());
+            }
+            renameat_with(CWD, from, CWD, to, RenameFlags::EXCHANGE)?;
+            return Err(std::io::Error::other(format!(
+                "{} changed while chirpmap moved its output into place (it is no longer a file); nothing was replaced",
+                to.display()
+            )));
         }
     }
     std::fs::rename(from, to)
 }
 
+/// Removes a staging folder: its outputs first, its lock file last, so a
+/// removal cut short (a kill, a file appearing meanwhile) leaves a folder
+/// that still reads as debris, never one without its lock.
+/// Only files are removed: chirpmap puts nothing else there, and a
+/// directory found there is someone's (left, with the folder around it).
 fn remove_staging(staging: &Path) {
     if let Ok(entries) = std::fs::read_dir(staging) {
         for e in entries.flatten() {
-            if e.file_name() != LOCK_FILE {
-                let p = e.path();
-                if p.is_dir() {
-                    std::fs::remove_dir_all(&p).ok()
-                } else {
-                    std::fs::remove_file(&p).ok()
-                };
+            let is_dir = e.file_type().is_ok_and(|t| t.is_dir());
+            if e.file_name() != LOCK_FILE && !is_dir {
+                std::fs::remove_file(e.path()).ok();
             }
         }
     }
@@ -509,7 +526,7 @@ impl Staged {
                 format!("cannot update {} (in a shared directory, is it another user's?)", manifest_path.display())
             })
         };
-        put_manifest(&both, "manifest-during-commit")?;
+        put_manifest(&both, STAGED_MANIFEST_DURING_COMMIT)?;
         let stale: Vec<String> = match self.mode {
             Mode::Files => Vec::new(),
             Mode::Dir => old
@@ -527,7 +544,7 @@ impl Staged {
                 bail!("stopped after moving {name} into place (test)");
             }
         }
-        put_manifest(&new, "manifest")?;
+        put_manifest(&new, STAGED_MANIFEST)?;
         for name in stale {
             let p = self.dir.join(&name);
             if std::fs::remove_file(&p).is_ok() {
@@ -859,6 +876,50 @@ mod tests {
         s.commit().expect("commit");
         let text = std::fs::read_to_string(t.path().join(DIR_MANIFEST)).expect("manifest");
         assert_eq!(text.lines().count(), 2, "one identity per file once committed: {text}");
+    }
+
+    /// Outputs named as the staging folder's own files were once clobbered:
+    /// `manifest` was written over with the manifest (through the old file,
+    /// which the exchange had left under that name, so a user's hard link to
+    /// it changed too), `manifest-during-commit` became the old manifest.
+    /// Reruns now keep each output's content and leave the user's link alone.
+    #[test]
+    fn outputs_named_like_the_staging_folders_files_are_written_whole() {
+        let t = tempfile::tempdir().expect("tmp");
+        let outs: Vec<PathBuf> =
+            ["manifest", "manifest-during-commit", "lock"].iter().map(|n| t.path().join(n)).collect();
+        let refs: Vec<&Path> = outs.iter().map(PathBuf::as_path).collect();
+        for round in ["first", "second", "third"] {
+            let mut s = StagedFiles::new(&refs, &[]).expect("files");
+            for p in &outs {
+                std::fs::write(s.path(p).expect("declared"), format!("{round} {}", p.display())).expect("write");
+            }
+            s.commit().expect("commit");
+            for p in &outs {
+                assert_eq!(std::fs::read_to_string(p).expect("read"), format!("{round} {}", p.display()));
+            }
+            if round == "first" {
+                std::fs::hard_link(&outs[0], t.path().join("keep")).expect("link");
+            }
+        }
+        let kept = std::fs::read_to_string(t.path().join("keep")).expect("kept");
+        assert_eq!(kept, format!("first {}", outs[0].display()));
+    }
+
+    /// A staging folder's removal deletes files only: a directory found there
+    /// is not chirpmap's (an exchange raced by a directory put in an output's
+    /// place would leave one there), so it stays, with its contents.
+    #[test]
+    fn removing_a_staging_folder_leaves_directories_alone() {
+        let t = tempfile::tempdir().expect("tmp");
+        let staging = t.path().join(format!("{STAGING_PREFIX}1-0"));
+        std::fs::create_dir_all(staging.join("echoes.csv")).expect("dir");
+        std::fs::write(staging.join("echoes.csv").join("data"), "precious").expect("write");
+        std::fs::write(staging.join("map.npy"), "staged").expect("write");
+        std::fs::write(staging.join(LOCK_FILE), "").expect("lock");
+        remove_staging(&staging);
+        assert_eq!(std::fs::read_to_string(staging.join("echoes.csv").join("data")).expect("kept"), "precious");
+        assert!(!staging.join("map.npy").exists());
     }
 
     #[test]

@@ -657,23 +657,37 @@ fn sparse_candidates(g: &Grid, r: usize, cells: Vec<(usize, usize, f64)>) -> Vec
     debug_assert!(cells.iter().all(|&(i, j, _)| i < g.spec.nx && j < g.spec.ny));
     let bucket = r + 1;
     let (cols, rows) = (g.spec.nx / bucket + 1, g.spec.ny / bucket + 1);
-    if cols.saturating_mul(rows) <= 8 * cells.len() + 4096 {
-        sparse_candidates_dense(r, cells, cols, rows)
+    let cells = if cols.saturating_mul(rows) <= 8 * cells.len() + 4096 {
+        match sparse_candidates_dense(r, cells, cols, rows, MAX_TIED_CANDIDATES) {
+            Ok(found) => return found,
+            Err(cells) => cells,
+        }
     } else {
-        sparse_candidates_sorted(r, cells, cols)
-    }
+        cells
+    };
+    sparse_candidates_sorted(r, cells, cols)
 }
+
+/// Largest cells one bucket may tie for [`sparse_candidates_dense`]: each
+/// cell around a bucket is checked against every one of its candidates, so
+/// a plateau of thousands of tied cells beside larger ones took 0.8 s there
+/// (a review's stripes of 1 and 2 on the default grid; the sorted search
+/// stops at the first larger cell within reach: 48 ms).
+const MAX_TIED_CANDIDATES: usize = 16;
 
 /// [`sparse_candidates`] with the buckets as dense arrays (`cols × rows`
 /// entries, a few per cell at most): two passes over the cells, no sort and
 /// no hashing. A hash map of sorted lists took 1.6 ms of the default
-/// `simulate`'s 23 631 survivors, on one thread (issue 14).
+/// `simulate`'s 23 631 survivors, on one thread (issue 14). Gives the cells
+/// back when a bucket ties for its largest value in more than `max_ties`
+/// cells ([`MAX_TIED_CANDIDATES`]).
 fn sparse_candidates_dense(
     r: usize,
     mut cells: Vec<(usize, usize, f64)>,
     cols: usize,
     rows: usize,
-) -> Vec<(usize, usize, f64)> {
+    max_ties: usize,
+) -> Result<Survivors, Survivors> {
     let bucket = r + 1;
     // Each cell's bucket, computed once (two integer divisions a cell).
     let keys: Vec<usize> = cells.iter().map(|&(i, j, _)| (j / bucket) * cols + i / bucket).collect();
@@ -687,6 +701,9 @@ fn sparse_candidates_dense(
     let mut candidates: Vec<(usize, usize)> =
         (0..cells.len()).filter(|&c| largest[keys[c]] <= cells[c].2).map(|c| (keys[c], c)).collect();
     candidates.sort_unstable();
+    if candidates.chunk_by(|a, b| a.0 == b.0).any(|tied| tied.len() > max_ties) {
+        return Err(cells);
+    }
     let mut first = vec![usize::MAX; cols * rows];
     for (n, &(k, _)) in candidates.iter().enumerate().rev() {
         first[k] = n;
@@ -732,7 +749,7 @@ fn sparse_candidates_dense(
         c += 1;
         keep
     });
-    cells
+    Ok(cells)
 }
 
 /// [`sparse_candidates`] when dense bucket arrays would be large (a window
@@ -1017,6 +1034,28 @@ mod tests {
         kept.into_iter().map(|(i, j, _)| (i, j)).collect()
     }
 
+    /// A plateau tied in far more cells than [`MAX_TIED_CANDIDATES`] beside
+    /// larger cells: the dense search gives the cells back (its check of
+    /// every cell against every tied candidate took 0.8 s on a review's
+    /// stripes), and the sorted search finds the naive maxima.
+    #[test]
+    fn a_wide_plateau_goes_to_the_sorted_search() {
+        let (nx, ny, r) = (120, 12, 5);
+        let mut g = Grid::zeros(GridSpec { x_min_m: 0.0, y_min_m: 0.0, cell_m: 0.1, nx, ny });
+        // Stripes of 1 and 2, six cells wide (one bucket): every 1-bucket ties in 72 cells.
+        for j in 0..ny {
+            for i in 0..nx {
+                g.data[j * nx + i] = if (i / (r + 1)) % 2 == 0 { 1.0 } else { 2.0 };
+            }
+        }
+        let (cols, rows) = (nx / (r + 1) + 1, ny / (r + 1) + 1);
+        let cells = survivors(&g, 0.5, usize::MAX).expect("survivors");
+        assert!(sparse_candidates_dense(r, cells.clone(), cols, rows, MAX_TIED_CANDIDATES).is_err());
+        let found = thin_plateaus(&g, r, sparse_candidates(&g, r, cells));
+        let at: Vec<(usize, usize)> = found.iter().map(|h| g.spec.cell_of(h.pos).expect("on the grid")).collect();
+        assert_eq!(at, naive_maxima(&g, r));
+    }
+
     proptest::proptest! {
         #[test]
         fn local_maxima_match_naive(
@@ -1061,7 +1100,8 @@ mod tests {
             // Both bucket layouts of the sparse search, whichever the grid's size picks.
             let survivors = || survivors(&g, floor, usize::MAX).unwrap();
             let (cols, rows) = (nx / (r + 1) + 1, ny / (r + 1) + 1);
-            let by_arrays = thin_plateaus(&g, r, sparse_candidates_dense(r, survivors(), cols, rows));
+            let by_arrays = sparse_candidates_dense(r, survivors(), cols, rows, usize::MAX);
+            let by_arrays = thin_plateaus(&g, r, by_arrays.unwrap_or_else(|_| unreachable!("no cap on ties")));
             let by_sorting = thin_plateaus(&g, r, sparse_candidates_sorted(r, survivors(), cols));
             proptest::prop_assert_eq!(cells(by_arrays), want.clone());
             proptest::prop_assert_eq!(cells(by_sorting), want.clone());
