@@ -104,12 +104,16 @@ where
 /// Whether `path` asks for vector output (`.svg`, any case); everything else
 /// is written as a bitmap in the format its extension names (PNG normally).
 pub fn is_svg(path: &Path) -> bool {
-    path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("svg"))
+    has_extension(path, "svg")
+}
+
+fn has_extension(path: &Path, ext: &str) -> bool {
+    path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case(ext))
 }
 
 /// Whether `path` names a PNG file (`.png`, any case).
 pub fn is_png(path: &Path) -> bool {
-    path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("png"))
+    has_extension(path, "png")
 }
 
 /// Writes `rgb` (8-bit RGB rows, top first) as a PNG of `(w, h)` pixels.

@@ -9,8 +9,9 @@
 //! place (read-only borrows of contiguous numpy buffers) and copied once
 //! for the work, which runs on a thread of its own while the calling thread
 //! waits with the interpreter detached ([`interruptible`]): other Python
-//! threads run meanwhile, and Ctrl-C raises `KeyboardInterrupt` at once. Every failure is a `ValueError`
-//! carrying the facade's message; nothing here panics on user data.
+//! threads run meanwhile, and Ctrl-C raises `KeyboardInterrupt` at once.
+//! Every failure is a `ValueError` carrying the facade's message; nothing
+//! here panics on user data.
 //!
 //! `room_echoes` (issue 10, "every reflection") is `chirpmap range
 //! --echoes`; its plain-Rust half, which assembles the facade's inputs as
@@ -262,9 +263,10 @@ fn map_echoes<'py>(
     let params =
         convert::mapping_params(cell, keep_top, min_of_max, peak_radius, ellipse_points, mapper, evidence_json)
             .map_err(value_error)?;
-    let (data, sigma) = (data.to_vec(), sigma.map(<[f64]>::to_vec));
+    // The rows become echoes here (detached, reading numpy's buffer in
+    // place); the worker gets the echoes, not a copy of the rows.
+    let echoes = py.detach(|| convert::echoes_from_rows(data, cols, sigma)).map_err(value_error)?;
     let map = interruptible(py, move || {
-        let echoes = convert::echoes_from_rows(&data, cols, sigma.as_deref())?;
         let opts = MapOptions { params, bounds, ..MapOptions::default() };
         chirpmap::map_echoes(&echoes, &[], &opts).map_err(|e| error_text(&e))
     })?;
