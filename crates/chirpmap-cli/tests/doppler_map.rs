@@ -143,3 +143,42 @@ fn hyperbolic_sweeps_synthesize_and_map_with_the_doppler_method() {
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(stderr(&o).contains("16 chirp(s)"), "{}", stderr(&o));
 }
+
+/// A listener circling inside an 8 m × 6 m room with a 0.3 m pillar
+/// (passing 8 cm from it), synthesized at 20 dB SNR and mapped from the
+/// recording with the evidence mapper (session 22). The frames' echoes are
+/// mostly the pillar's, ranged to about 2 cm, and in about a tenth of them the
+/// pillar's echo is missed and a later one reported. Before, the pillar was
+/// not among the 37 points reported (the strongest 1.7 m off it): the
+/// first-order circle model, a fit that never converged at its radius bound,
+/// and free space carved by the frames that missed the pillar.
+#[test]
+fn a_pillar_circled_in_a_room_is_one_point_from_the_recording() {
+    let d = tmp("pillar");
+    let sc = d.join("scene.toml");
+    std::fs::write(
+        &sc,
+        "[chirp]\nf_start = 10000.0\nf_end = 200.0\nduration = 0.25\n[source]\nposition = [2.0, 2.5]\n\
+         [[obstacles]]\nvertices = [[0.0, 0.0], [8.0, 0.0], [8.0, 6.0], [0.0, 6.0]]\nroughness = 0.0\nabsorption = 0.2\n\
+         [[obstacles]]\ncenter = [5.5, 3.8]\nradius = 0.3\nroughness = 0.0\nabsorption = 0.2\n\
+         [[listeners]]\nstart = [4.0, 1.2]\nspeed = 1.0\nspin_rate = 0.5\n\
+         [synth]\nchirps = 60\ngap_s = 0.25\nsnr_db = 20.0\n[mapping]\nmapper = \"evidence\"\n",
+    )
+    .unwrap();
+    let (wav, poses) = synth(&sc, &d);
+    let out = d.join("map");
+    let o = Command::new(env!("CARGO_BIN_EXE_chirpmap"))
+        .args(["map", "--wav", wav.to_str().unwrap(), "--poses", poses.to_str().unwrap()])
+        .args(["--speaker", "2,2.5", "--scene", sc.to_str().unwrap(), "--out", out.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    let (head, rows) = read_csv(&out.join("surfaces.csv"));
+    assert_eq!(head[..3], ["kind", "x0", "y0"]);
+    assert!(rows.len() <= 6, "{} surfaces: {rows:?}", rows.len());
+    let (x, y): (f64, f64) = (rows[0][1].parse().unwrap(), rows[0][2].parse().unwrap());
+    let off = ((x - 5.5).hypot(y - 3.8) - 0.3).abs();
+    assert_eq!(rows[0][0], "point", "{rows:?}");
+    assert!(off <= 0.05, "the strongest surface is {off:.3} m off the pillar: {rows:?}");
+    let _ = std::fs::remove_dir_all(&d);
+}

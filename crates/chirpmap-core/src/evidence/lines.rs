@@ -789,13 +789,8 @@ fn occluded_fraction(ctx: &Ctx, c: &Cand, occluders: &[&Cand]) -> f64 {
 fn free_fraction(ctx: &Ctx, c: &Cand) -> f64 {
     let len = c.length();
     let n = ((len / (0.5 * ctx.spec.cell_m)).ceil() as usize).clamp(1, 100_000);
-    let support = c.support() as f64;
-    let free = (0..=n)
-        .filter(|&s| {
-            let carvers = ctx.carvings_at(c.p0 + (c.p1 - c.p0) * (s as f64 / n as f64));
-            carvers >= 2.0 && 2.0 * carvers > support
-        })
-        .count();
+    let support = c.support();
+    let free = (0..=n).filter(|&s| ctx.free_against(c.p0 + (c.p1 - c.p0) * (s as f64 / n as f64), support)).count();
     free as f64 / (n + 1) as f64
 }
 

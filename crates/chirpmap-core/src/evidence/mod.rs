@@ -266,9 +266,18 @@ impl Ctx<'_> {
     pub fn carvings_at(&self, p: Point) -> f64 {
         (self.free_at(p) / self.params.free_logodds).round()
     }
-    /// Whether at least two measurements carved `p` free.
-    pub fn is_free(&self, p: Point) -> bool {
-        self.carvings_at(p) >= 2.0
+    /// Whether `p` is free space against a surface there heard by `support`
+    /// measurements: at least two measurements carved it, and more than half
+    /// `support`. A measurement whose first echo was missed (its ranging
+    /// reported a later one) carves through every nearer reflector, so the
+    /// carvings are weighed against the echoes, as a log-odds sum would
+    /// (Moravec and Elfes 1985). Counting carvings alone, 117 frames of a
+    /// synthesized walk round a pillar whose pillar echo was missed carved the
+    /// pillar free, and 800 echoes of it made 37 points elsewhere (session 22;
+    /// lines were weighed so since session 17).
+    pub fn free_against(&self, p: Point, support: usize) -> bool {
+        let carvings = self.carvings_at(p);
+        carvings >= 2.0 && 2.0 * carvings > support as f64
     }
 
     /// Positions in `ms` (measurement indices, increasing) of the

@@ -74,6 +74,10 @@ pub(crate) fn vote_points(
         return Vec::new();
     }
     let extents: Vec<(Point, Point)> = walls.iter().map(|w| w.extent).collect();
+    let mut not_left = vec![true; ctx.preps.len()];
+    for &k in &left {
+        not_left[k] = false;
+    }
     let Some(vote) = Vote::count(ctx, &left) else { return Vec::new() };
     let mut used = vec![false; ctx.preps.len()];
     // Hashes of the echo sets tried: neighbouring seeds of one ridge of the
@@ -124,7 +128,7 @@ pub(crate) fn vote_points(
             // stand-in; a point beside it can place the circle better.)
             let on_wall = reach.iter().any(|&(q0, q1)| point_segment_distance(at, q0, q1) <= p.point_radius_m);
             if ctx.spec.cell_of(at).is_none()
-                || ctx.is_free(at)
+                || ctx.free_against(at, ks.len())
                 || on_wall
                 || near_reflector(at, &reflectors)
                 || hidden(ctx, &ks, at, &extents)
@@ -132,20 +136,32 @@ pub(crate) fn vote_points(
                 continue;
             }
             let ks = extend_runs(ctx, ks, nearest_per_meas(ctx, &left, &used, at, 0.0));
-            for &k in &ks {
+            // A pillar is no point at a centimetre's σ: the point fits the
+            // echoes of one side of it, and the rest would seed points
+            // metres away (a 0.3 m pillar circled at σ = 1–2 cm gave 25–27
+            // points, session 22). As the envelope's reflectors do, the
+            // point grows into the small circle that fits its echoes, which
+            // then takes every echo left that the circle explains.
+            let mut touches: Vec<(usize, Point)> = ks.iter().map(|&k| (k, at)).collect();
+            let mut meas_seen: std::collections::BTreeSet<usize> = ks.iter().map(|&k| ctx.preps[k].meas).collect();
+            let model = super::envelope::explain_more(ctx, &not_left, &used, at, &mut touches, &mut meas_seen)
+                .unwrap_or(super::envelope::SmallCircle { c: at, rho_m: 0.0 });
+            for &(k, _) in &touches {
                 used[k] = true;
             }
+            let ks: Vec<usize> = touches.iter().map(|&(k, _)| k).collect();
             reflectors.push(at);
+            let at = model.point_toward(at);
             out.push(PointOut {
                 surface: Surface {
                     kind: SurfaceKind::Point,
                     p0: at,
                     p1: at,
-                    support: ks.len(),
+                    support: meas_seen.len(),
                     ambiguous: super::envelope::point_ambiguous(ctx, &ks, at),
                 },
-                touches: ks.iter().map(|&k| (k, at)).collect(),
-                model: Some(super::envelope::SmallCircle { c: at, rho_m: 0.0 }),
+                touches,
+                model: Some(model),
             });
         }
     }
@@ -470,7 +486,7 @@ impl Vote {
                         (jj, ii) == (j, i) || w < v || (w == v && (jj, ii) > (j, i))
                     })
                 });
-                if is_max && !ctx.is_free(self.spec.cell_center(i, j)) {
+                if is_max && !ctx.free_against(self.spec.cell_center(i, j), v as usize) {
                     seeds.push((v, j * nx + i));
                 }
             }
