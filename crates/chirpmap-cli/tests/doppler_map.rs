@@ -149,7 +149,7 @@ fn hyperbolic_sweeps_synthesize_and_map_with_the_doppler_method() {
 /// recording with the evidence mapper (session 22). The frames' echoes are
 /// mostly the pillar's, ranged to about 2 cm, and in about a tenth of them the
 /// pillar's echo is missed and a later one reported. Before, the pillar was
-/// not among the 37 points reported (the strongest 1.7 m off it): the
+/// not among the 37 points reported (the strongest 1.85 m off it): the
 /// first-order circle model, a fit that never converged at its radius bound,
 /// and free space carved by the frames that missed the pillar.
 #[test]

@@ -385,10 +385,10 @@ impl SmallCircle {
     /// `max_rho_m`), which trimming does not mend. The envelope's clusters hold
     /// the crossings of every ellipse near the reflector, and echoes ranged
     /// from a recording stray by tens of σ now and then (a synthesized walk
-    /// round a pillar, 13 % of them off by 5–47 cm, session 22): one such
-    /// echo kept the circle from converging, and the pillar came out as
-    /// many points. `None` when no fit remains; else the circle and the
-    /// echoes it explains, in `ks`'s order.
+    /// round a pillar, 13 % of them off by 5–76 cm, session 22). Before, a
+    /// fit whose RMS residual exceeded kσ was refused whole, with no way to
+    /// drop such an echo and keep the reflector. `None` when no fit remains;
+    /// else the circle and the echoes it explains, in `ks`'s order.
     fn fit(ctx: &Ctx, ks: &[usize], start: Point, max_rho_m: f64) -> Option<(Self, Vec<usize>)> {
         let p = ctx.params;
         let min_keep = ks.len().div_ceil(2).max(p.min_support as usize);

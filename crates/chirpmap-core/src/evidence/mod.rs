@@ -271,7 +271,7 @@ impl Ctx<'_> {
     /// `support`. A measurement whose first echo was missed (its ranging
     /// reported a later one) carves through every nearer reflector, so the
     /// carvings are weighed against the echoes, as a log-odds sum would
-    /// (Moravec and Elfes 1985). Counting carvings alone, 117 frames of a
+    /// (Moravec and Elfes 1985). Counting carvings alone, 116 frames of a
     /// synthesized walk round a pillar whose pillar echo was missed carved the
     /// pillar free, and 800 echoes of it made 37 points elsewhere (session 22;
     /// lines were weighed so since session 17).

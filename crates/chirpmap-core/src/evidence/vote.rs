@@ -138,7 +138,7 @@ pub(crate) fn vote_points(
             let ks = extend_runs(ctx, ks, nearest_per_meas(ctx, &left, &used, at, 0.0));
             // A pillar is no point at a centimetre's σ: the point fits the
             // echoes of one side of it, and the rest would seed points
-            // metres away (a 0.3 m pillar circled at σ = 1–2 cm gave 25–27
+            // metres away (a 0.3 m pillar circled at σ = 0.5–2 cm gave 25–28
             // points, session 22). As the envelope's reflectors do, the
             // point grows into the small circle that fits its echoes, which
             // then takes every echo left that the circle explains.
