@@ -4,9 +4,9 @@
 //! neighbouring points, so two of them cross next to the reflector (for a
 //! circle of radius r seen over an angle δ between the two touching points,
 //! r·δ²/8 outside it): the discrete envelope. Crossings of unrelated ellipses
-//! land anywhere, and crossings in carved free space are dropped. Envelope
-//! points that pile up within `point_radius_m`, from enough measurements,
-//! are a compact reflector.
+//! land anywhere. Envelope points that pile up within `point_radius_m`, from
+//! enough measurements, are a compact reflector, unless carved free space
+//! outweighs it ([`Ctx::free_against`]).
 
 use super::{Ctx, Surface, SurfaceKind};
 use crate::ellipse::Ellipse;
@@ -197,6 +197,9 @@ pub(crate) fn find_points(ctx: &Ctx, skip: &[bool], max_points: usize) -> Vec<Po
         let model = explain_more(ctx, skip, &echo_used, at, &mut touches, &mut meas_seen);
         // In free space against what it explains (Ctx::free_against): its
         // echoes stay for the reflectors found after it.
+        // (Tested where it is reported: with noise the seed crossing may lie
+        // 0.2–0.3 m off a pole, in space truly carved free.)
+        let at = model.map_or(at, |m| m.point_toward(at));
         if ctx.free_against(at, meas_seen.len()) {
             continue;
         }
@@ -204,7 +207,6 @@ pub(crate) fn find_points(ctx: &Ctx, skip: &[bool], max_points: usize) -> Vec<Po
             echo_used[k] = true;
         }
         let ks: Vec<usize> = touches.iter().map(|&(k, _)| k).collect();
-        let at = model.map_or(at, |m| m.point_toward(at));
         out.push(PointOut {
             surface: Surface {
                 kind: SurfaceKind::Point,
@@ -242,8 +244,9 @@ impl SmallCircle {
     /// is off by up to 4.7 cm for a 0.3 m pillar passed at 0.85 m (the
     /// listener's loop of `map --wav` on a synthesized room, session 22):
     /// more than the band of echoes ranged to a centimetre, so one pillar
-    /// came out as many points. When a focus lies inside the circle, or
-    /// the iteration fails (foci on opposite sides), that formula stands in.
+    /// came out as many points. When a focus lies inside the circle, the
+    /// circle blocks the direct path, or the iteration fails, that formula
+    /// stands in (never below 0).
     pub(crate) fn predict(&self, s: Point, l: Point) -> Option<(f64, [f64; 3])> {
         let (ds, dl) = (s - self.c, l - self.c);
         let (ns, nl) = (ds.dot(ds).sqrt(), dl.dot(dl).sqrt());
@@ -261,7 +264,9 @@ impl SmallCircle {
         let half = (0.5 * (1.0 + cos_beta)).sqrt();
         let path = ns + nl - 2.0 * self.rho_m * half;
         let grad = [-(ds.x / ns + dl.x / nl), -(ds.y / ns + dl.y / nl), -2.0 * half];
-        Some((path - s.dist(l), grad))
+        // (A path the circle blocks is no reflection: the least ellipse
+        // touching the circle is the direct segment, Δd = 0.)
+        Some(((path - s.dist(l)).max(0.0), grad))
     }
 
     /// The direction (a unit vector from the centre) of the reflection point
@@ -271,14 +276,14 @@ impl SmallCircle {
     /// foci (the exact point when ρ = 0, and within O(ρ/distance) of it
     /// otherwise). Each step turns the direction by the Newton step's angle
     /// `δ` as `u + δ·u⊥`, normalised (tan δ instead of δ: the same zero, and no
-    /// sine or cosine per step). `None` with a focus inside the circle (no
-    /// reflection), foci on opposite sides (no bisector), or no convergence
-    /// in [`SPECULAR_NEWTON_STEPS`].
+    /// sine or cosine per step). `None` with a focus inside the circle or the
+    /// direct path through it (no reflection), foci in opposite directions
+    /// (no bisector), or no convergence in [`SPECULAR_NEWTON_STEPS`].
     pub(crate) fn specular_dir(&self, s: Point, l: Point) -> Option<Point> {
         let (ds, dl) = (s - self.c, l - self.c);
         let (ns, nl) = (ds.dot(ds).sqrt(), dl.dot(dl).sqrt());
         let r = self.rho_m;
-        if !(ns > r && nl > r) {
+        if !(ns > r && nl > r) || crate::geometry::point_segment_distance(self.c, s, l) <= r {
             return None;
         }
         let bisector = ds * (1.0 / ns) + dl * (1.0 / nl);
@@ -302,9 +307,24 @@ impl SmallCircle {
             if d2 <= 0.0 || d2.is_nan() {
                 return None;
             }
-            let step = (d1 / d2).clamp(-0.5, 0.5);
-            let turned = u - perp * step;
-            u = turned * (1.0 / turned.dot(turned).sqrt());
+            // Backtracking: with a focus within a few centimetres of the
+            // circle the path has a sharp bend there, and plain Newton
+            // jumped between two directions until it gave up (the review of
+            // session 22); a step is halved while it lengthens the path.
+            let mut step = (d1 / d2).clamp(-0.5, 0.5);
+            let here = na + nb;
+            let mut next = u;
+            for _ in 0..SPECULAR_NEWTON_STEPS {
+                let turned = u - perp * step;
+                next = turned * (1.0 / turned.dot(turned).sqrt());
+                let q = self.c + next * r;
+                let (a, b) = (q - s, q - l);
+                if a.dot(a).sqrt() + b.dot(b).sqrt() <= here * (1.0 + 1e-15) {
+                    break;
+                }
+                step *= 0.5;
+            }
+            u = next;
             if step.abs() < 1e-12 {
                 return Some(u);
             }
@@ -339,8 +359,8 @@ impl SmallCircle {
 
     /// Gauss–Newton fit of centre and radius to the echoes `ks`, from the
     /// circle `from`; the radius is kept within `[0, max_rho_m]`.
-    /// Returns the last model (`None` on a singular system) and whether it is
-    /// one: converged, finite, and its centre within 2·`max_rho_m` of `start`
+    /// Returns the last model (`None` on a singular system, or where an
+    /// echo's path cannot be predicted) and whether it is one: converged, finite, and its centre within 2·`max_rho_m` of `start`
     /// (the cluster lies next to the reflector's surface; along a straight
     /// pass the centre's distance and the radius trade against each other
     /// and an undamped step can run off).
@@ -378,8 +398,8 @@ impl SmallCircle {
 
     /// [`Self::gauss_newton`] from a point reflector at `start`, with
     /// outliers trimmed: while any echo lies more than kσ off the fit, the
-    /// worst eighth of those off (at least one) are dropped and the circle
-    /// refitted from the last one, keeping at least half the echoes and
+    /// worst of them go, an eighth of the echoes kept (at least one, at most
+    /// those off), and the circle is refitted from the last one, keeping at least half the echoes and
     /// `min_support`. A fit that does not converge is refused at once:
     /// that is the echoes' geometry (a short arc, a circle wider than
     /// `max_rho_m`), which trimming does not mend. The envelope's clusters hold
@@ -413,13 +433,7 @@ impl SmallCircle {
             if outliers == 0 {
                 return Some((model, keep));
             }
-            let drop = (keep.len() / 8).max(1).min(outliers);
-            z.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
-            let mut gone = vec![false; keep.len()];
-            for &(_, i) in &z[..drop] {
-                gone[i] = true;
-            }
-            keep = keep.iter().zip(&gone).filter(|(_, g)| !**g).map(|(&k, _)| k).collect();
+            keep = super::without_worst(&keep, &mut z, (keep.len() / 8).max(1).min(outliers));
         }
         None
     }
@@ -519,23 +533,24 @@ pub(crate) fn point_ambiguous(ctx: &Ctx, ks: &[usize], at: Point) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::{Circle, specular_point_on_circle};
+    use crate::geometry::{Circle, point_segment_distance, specular_point_on_circle};
     use proptest::prelude::*;
 
     proptest! {
         /// The reflection point and path of a small circle against the
         /// geometry module's search (a 720-step scan of the circle, then
-        /// bisection on the path's slope), foci from just outside the circle
-        /// to 30 m; and the path's gradient against central differences.
+        /// bisection on the path's slope), foci from 0.1 mm outside the circle
+        /// (half the cases within 2 cm, where plain Newton failed) to 30 m;
+        /// and the path's gradient against central differences.
         #[test]
         fn specular_path_is_the_searched_shortest_path(
             cx in -5.0..5.0f64,
             cy in -5.0..5.0f64,
             r in 0.01..0.5f64,
             ang_s in 0.0..std::f64::consts::TAU,
-            gap_s in 0.02..30.0f64,
+            gap_s in prop_oneof![1e-4..0.02f64, 0.02..30.0f64],
             ang_l in 0.0..std::f64::consts::TAU,
-            gap_l in 0.02..30.0f64,
+            gap_l in prop_oneof![1e-4..0.02f64, 0.02..30.0f64],
         ) {
             let c = Point::new(cx, cy);
             let s = c + Point::from_angle(ang_s) * (r + gap_s);
@@ -544,11 +559,16 @@ mod tests {
             // (None: the direct path is blocked, no reflection.)
             let Some(want) = specular_point_on_circle(s, l, &circle) else { return Ok(()) };
             let model = SmallCircle { c, rho_m: r };
-            let got = model.specular_point(s, l);
-            prop_assert!(got.dist(want) < 1e-7, "point {got:?} against {want:?}");
             let (dd, grad) = model.predict(s, l).expect("prediction");
             let path = want.dist(s) + want.dist(l) - s.dist(l);
-            prop_assert!((dd - path).abs() < 1e-9, "Δd {dd} against {path}");
+            prop_assert!((dd - path).abs() < 1e-8, "Δd {dd} against {path}");
+            // Where the direct path grazes the circle, the path length is flat
+            // along it over millimetres (Δd ≈ 0): only Δd is fixed there.
+            if point_segment_distance(c, s, l) - r < 1e-3 {
+                return Ok(());
+            }
+            let got = model.specular_point(s, l);
+            prop_assert!(got.dist(want) < 1e-7, "point {got:?} against {want:?}");
             let h = 1e-6;
             let at = |m: SmallCircle| m.predict(s, l).expect("prediction").0;
             let numeric = [

@@ -926,6 +926,19 @@ pub fn logodds_to_probability(l: f64) -> f64 {
     1.0 / (1.0 + (-l).exp())
 }
 
+/// `ks` without its `drop` worst echoes, in order: `z` holds each echo's
+/// misfit (in σ) and its index in `ks`, and is sorted here, worst first
+/// (equal misfits: the earlier echo first). The trimming step of both point
+/// fits ([`vote`]'s and [`envelope`]'s small circles).
+pub(crate) fn without_worst(ks: &[usize], z: &mut [(f64, usize)], drop: usize) -> Vec<usize> {
+    z.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+    let mut gone = vec![false; ks.len()];
+    for &(_, i) in &z[..drop.min(z.len())] {
+        gone[i] = true;
+    }
+    ks.iter().zip(&gone).filter(|(_, g)| !**g).map(|(&k, _)| k).collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -146,6 +146,12 @@ pub(crate) fn vote_points(
             let mut meas_seen: std::collections::BTreeSet<usize> = ks.iter().map(|&k| ctx.preps[k].meas).collect();
             let model = super::envelope::explain_more(ctx, &not_left, &used, at, &mut touches, &mut meas_seen)
                 .unwrap_or(super::envelope::SmallCircle { c: at, rho_m: 0.0 });
+            // Every echo at its reflection point on the circle, as the ones
+            // it grew by (the point's own echoes were placed at the point).
+            for (k, q) in &mut touches {
+                let e = &ctx.preps[*k].ellipse;
+                *q = model.specular_point(e.focus_a, e.focus_b);
+            }
             for &(k, _) in &touches {
                 used[k] = true;
             }
@@ -579,13 +585,7 @@ fn trimmed_fit(ctx: &Ctx, start: Point, min_keep: usize, mut ks: Vec<usize>) -> 
         // The worst eighth of the echoes (at least one, only outliers, and
         // never below `min_support`) go: a few rounds for a few hundred
         // echoes through a seed, where one at a time cost a fit per echo.
-        let drop = (ks.len() / 8).max(1).min(outliers).min(ks.len() - min);
-        z.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
-        let mut gone = vec![false; ks.len()];
-        for &(_, i) in &z[..drop] {
-            gone[i] = true;
-        }
-        ks = ks.iter().zip(&gone).filter(|(_, g)| !**g).map(|(&k, _)| k).collect();
+        ks = super::without_worst(&ks, &mut z, (ks.len() / 8).max(1).min(outliers).min(ks.len() - min));
     }
     None
 }
