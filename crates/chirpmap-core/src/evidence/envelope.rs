@@ -8,6 +8,7 @@
 //! enough measurements, are a compact reflector, unless carved free space
 //! outweighs it ([`Ctx::free_against`]).
 
+use super::vote::on_wall;
 use super::{Ctx, Surface, SurfaceKind};
 use crate::ellipse::Ellipse;
 use crate::geometry::Point;
@@ -21,6 +22,10 @@ pub(crate) struct PointOut {
     /// The small circle last fitted to them (`None` when no fit converged).
     pub model: Option<SmallCircle>,
 }
+
+/// Poses after a measurement searched for the envelope's second pose (from
+/// the next pose, and again from where the path reaches the baseline).
+const ENVELOPE_NEAR_POSES: usize = 8;
 
 /// Gauss–Newton iterations of a small circle's fit.
 const FIT_ITERATIONS: usize = 20;
@@ -97,19 +102,44 @@ struct EnvPoint {
     b: usize,
 }
 
-pub(crate) fn find_points(ctx: &Ctx, skip: &[bool], max_points: usize) -> Vec<PointOut> {
+pub(crate) fn find_points(ctx: &Ctx, skip: &[bool], walls: &[super::vote::Wall], max_points: usize) -> Vec<PointOut> {
     let p = ctx.params;
+    let (trusted, reach) = super::vote::trusted_reach(walls);
     let mut env: Vec<EnvPoint> = Vec::new();
     let mut buf = Vec::new();
+    let moved = |a: &super::Meas, b: &super::Meas| a.listener.dist(b.listener) + a.source.dist(b.source);
+    // Path travelled (listener and source) up to each measurement, from its
+    // listener's first, and where each listener's measurements end.
+    let mut travelled = vec![0.0f64; ctx.meas.len()];
+    let mut run_end = vec![ctx.meas.len(); ctx.meas.len()];
+    for i in 1..ctx.meas.len() {
+        if ctx.meas[i].listener_id == ctx.meas[i - 1].listener_id {
+            travelled[i] = travelled[i - 1] + moved(&ctx.meas[i], &ctx.meas[i - 1]);
+        }
+    }
+    for i in (0..ctx.meas.len().saturating_sub(1)).rev() {
+        if ctx.meas[i].listener_id == ctx.meas[i + 1].listener_id {
+            run_end[i] = run_end[i + 1];
+        } else {
+            run_end[i] = i + 1;
+        }
+    }
     for (mi, m) in ctx.meas.iter().enumerate() {
-        // The next pose of the same listener at least the baseline away
-        // (within a few poses).
-        let Some(next) = ctx.meas[mi + 1..]
-            .iter()
-            .take(8)
-            .take_while(|n| n.listener_id == m.listener_id)
-            .find(|n| n.listener.dist(m.listener) + n.source.dist(m.source) >= p.envelope_baseline_m)
-        else {
+        // The next pose of the same listener at least the baseline away:
+        // within a few poses, else the first few from where the path
+        // travelled reaches the baseline (a straight line is no longer than
+        // the path). Poses closer together than a baseline over eight (a
+        // walk sampled every millimetre: `map --wav` at 1 ms) found none
+        // within eight, and a pillar gave no crossings at all (the review of
+        // session 22: 4 000 poses 3 mm apart, σ = 1 cm, no surface).
+        let far_enough = |n: &&super::Meas| moved(n, m) >= p.envelope_baseline_m;
+        let near = ctx.meas[mi + 1..run_end[mi]].iter().take(ENVELOPE_NEAR_POSES).find(far_enough);
+        let next = near.or_else(|| {
+            let ahead = &travelled[mi + 1..run_end[mi]];
+            let from = mi + 1 + ahead.partition_point(|&t| t - travelled[mi] < p.envelope_baseline_m);
+            ctx.meas[from..run_end[mi]].iter().take(ENVELOPE_NEAR_POSES).find(far_enough)
+        });
+        let Some(next) = next else {
             continue;
         };
         let moved = 2.0 * (next.listener.dist(m.listener) + next.source.dist(m.source));
@@ -201,6 +231,21 @@ pub(crate) fn find_points(ctx: &Ctx, skip: &[bool], max_points: usize) -> Vec<Po
         // 0.2–0.3 m off a pole, in space truly carved free.)
         let at = model.map_or(at, |m| m.point_toward(at));
         if ctx.free_against(at, meas_seen.len()) {
+            continue;
+        }
+        // On a found wall that is not ambiguous and explains ten times its
+        // echoes: that wall's own echoes its runs missed, whose consecutive
+        // ellipses cross next to it. Once poses closer than a baseline over
+        // eight were paired, a walk in a room with clutter gave such a point
+        // (16 echoes, 6 cm from a wall of 2 000; test
+        // `room_walls_in_clutter_and_nothing_else`). Any point on a wall, as
+        // the vote refuses it, would take the points on the loop past circles
+        // whose short lines hug the circles (test `loop_past_three_circles`).
+        let leftover = trusted
+            .iter()
+            .zip(&reach)
+            .any(|(w, r)| w.support >= 10 * meas_seen.len() && on_wall(std::slice::from_ref(r), at, p.point_radius_m));
+        if leftover {
             continue;
         }
         for &(k, _) in &touches {

@@ -450,14 +450,6 @@ pub fn map_evidence(echoes: &[Echo], spec: GridSpec, params: &EvidenceParams) ->
     let skip: Vec<bool> = explained.iter().zip(&ghost_echo).map(|(e, g)| e.is_some() || *g).collect();
     let max_points = (params.max_surfaces as usize).saturating_sub(surfaces.len());
     let mut models: Vec<Option<envelope::SmallCircle>> = vec![None; surfaces.len()];
-    let mut points = envelope::find_points(&ctx, &skip, max_points);
-    // Then reflectors the envelope misses ([`vote`]), from the echoes left.
-    let mut skip = skip;
-    for p in &points {
-        for &(k, _) in &p.touches {
-            skip[k] = true;
-        }
-    }
     let walls: Vec<vote::Wall> = lines
         .accepted
         .iter()
@@ -466,8 +458,17 @@ pub fn map_evidence(echoes: &[Echo], spec: GridSpec, params: &EvidenceParams) ->
             normal: Point::from_angle(l.theta),
             extent: lines::extended(l.surface.p0, l.surface.p1, l.theta),
             ambiguous: l.surface.ambiguous,
+            support: l.surface.support,
         })
         .collect();
+    let mut points = envelope::find_points(&ctx, &skip, &walls, max_points);
+    // Then reflectors the envelope misses ([`vote`]), from the echoes left.
+    let mut skip = skip;
+    for p in &points {
+        for &(k, _) in &p.touches {
+            skip[k] = true;
+        }
+    }
     let voted = vote::vote_points(&ctx, &skip, &walls, &points, max_points.saturating_sub(points.len()));
     points.extend(voted);
     for p in points {

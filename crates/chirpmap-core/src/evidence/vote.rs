@@ -62,8 +62,7 @@ pub(crate) fn vote_points(
     if max_points == 0 {
         return Vec::new();
     }
-    let trusted: Vec<Wall> = walls.iter().filter(|w| !w.ambiguous).copied().collect();
-    let reach: Vec<(Point, Point)> = trusted.iter().map(|w| w.reach_to_corners(&trusted)).collect();
+    let (trusted, reach) = trusted_reach(walls);
     // In measurement order: one vote per measurement and one echo per
     // measurement below rely on it.
     let mut left: Vec<usize> = (0..ctx.preps.len())
@@ -126,7 +125,7 @@ pub(crate) fn vote_points(
             // echoes are the wall's own that its runs missed: no new reflector.
             // (An ambiguous line of a straight pass may be a large circle's
             // stand-in; a point beside it can place the circle better.)
-            let on_wall = reach.iter().any(|&(q0, q1)| point_segment_distance(at, q0, q1) <= p.point_radius_m);
+            let on_wall = on_wall(&reach, at, p.point_radius_m);
             if ctx.spec.cell_of(at).is_none()
                 || ctx.free_against(at, ks.len())
                 || on_wall
@@ -172,6 +171,20 @@ pub(crate) fn vote_points(
         }
     }
     out
+}
+
+/// The walls that are not mirror-ambiguous, and each continued to its
+/// corners with the others ([`Wall::reach_to_corners`]).
+pub(crate) fn trusted_reach(walls: &[Wall]) -> (Vec<Wall>, Vec<(Point, Point)>) {
+    let trusted: Vec<Wall> = walls.iter().filter(|w| !w.ambiguous).copied().collect();
+    let reach = trusted.iter().map(|w| w.reach_to_corners(&trusted)).collect();
+    (trusted, reach)
+}
+
+/// Whether `at` lies within `radius_m` of a trusted wall's reach: a compact
+/// reflector found there is made of that wall's own echoes its runs missed.
+pub(crate) fn on_wall(reach: &[(Point, Point)], at: Point, radius_m: f64) -> bool {
+    reach.iter().any(|&(q0, q1)| point_segment_distance(at, q0, q1) <= radius_m)
 }
 
 /// Seeds worked out together by [`plan_batch`].
@@ -297,6 +310,8 @@ pub(crate) struct Wall {
     pub extent: (Point, Point),
     /// Mirror-ambiguous: its images are not trusted.
     pub ambiguous: bool,
+    /// Echoes it explains.
+    pub support: usize,
 }
 
 impl Wall {
