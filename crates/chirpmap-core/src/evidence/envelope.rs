@@ -23,9 +23,12 @@ pub(crate) struct PointOut {
     pub model: Option<SmallCircle>,
 }
 
-/// Poses after a measurement searched for the envelope's second pose (from
-/// the next pose, and again from where the path reaches the baseline).
+/// Poses after a measurement searched first for the envelope's second pose.
 const ENVELOPE_NEAR_POSES: usize = 8;
+
+/// Then from where the path reaches the baseline, on until it has travelled
+/// this many baselines (a bound on the search, whatever the poses' jitter).
+const ENVELOPE_MAX_TRAVEL: f64 = 20.0;
 
 /// Gauss–Newton iterations of a small circle's fit.
 const FIT_ITERATIONS: usize = 20;
@@ -137,7 +140,17 @@ pub(crate) fn find_points(ctx: &Ctx, skip: &[bool], walls: &[super::vote::Wall],
         let next = near.or_else(|| {
             let ahead = &travelled[mi + 1..run_end[mi]];
             let from = mi + 1 + ahead.partition_point(|&t| t - travelled[mi] < p.envelope_baseline_m);
-            ctx.meas[from..run_end[mi]].iter().take(ENVELOPE_NEAR_POSES).find(far_enough)
+            // On until the path has travelled ENVELOPE_MAX_TRAVEL baselines:
+            // with jittery poses (a tracker's, 3 mm) the path runs well ahead
+            // of the straight distance, and the eight poses there were all
+            // within 1–2 cm (the second review of session 22).
+            let reach = travelled[mi] + ENVELOPE_MAX_TRAVEL * p.envelope_baseline_m;
+            ctx.meas[from..run_end[mi]]
+                .iter()
+                .zip(&travelled[from..run_end[mi]])
+                .take_while(|&(_, &t)| t <= reach)
+                .map(|(n, _)| n)
+                .find(far_enough)
         });
         let Some(next) = next else {
             continue;
@@ -189,11 +202,17 @@ pub(crate) fn find_points(ctx: &Ctx, skip: &[bool], walls: &[super::vote::Wall],
         }
         v
     };
-    let density: Vec<usize> = (0..env.len()).map(|i| neighbours(i).len()).collect();
+    // On rayon's threads (the same counts whatever their number): quadratic
+    // in a pile's size, the bulk of this step on densely sampled walks.
+    let density: Vec<usize> = {
+        use rayon::prelude::*;
+        (0..env.len()).into_par_iter().map(|i| neighbours(i).len()).collect()
+    };
     let mut order: Vec<usize> = (0..env.len()).collect();
     order.sort_by(|&a, &b| density[b].cmp(&density[a]).then(a.cmp(&b)));
     let mut taken = vec![false; env.len()];
     let mut echo_used = vec![false; ctx.preps.len()];
+    let mut in_touches = vec![false; ctx.preps.len()];
     let mut out = Vec::new();
     for seed in order {
         if out.len() >= max_points || density[seed] < p.min_support as usize {
@@ -208,11 +227,17 @@ pub(crate) fn find_points(ctx: &Ctx, skip: &[bool], walls: &[super::vote::Wall],
         let mut meas_seen = std::collections::BTreeSet::new();
         for &j in &members {
             for k in [env[j].a, env[j].b] {
-                if !echo_used[k] && !touches.iter().any(|&(t, _)| t == k) {
+                // (A flag per echo: a search of the touches made a pile of n
+                // crossings cost n², 8 s for 35 000 echoes 1 mm apart.)
+                if !echo_used[k] && !in_touches[k] {
+                    in_touches[k] = true;
                     touches.push((k, env[j].p));
                     meas_seen.insert(ctx.preps[k].meas);
                 }
             }
+        }
+        for &(k, _) in &touches {
+            in_touches[k] = false;
         }
         for &j in &members {
             taken[j] = true;
