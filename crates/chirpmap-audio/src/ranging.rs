@@ -130,6 +130,37 @@ pub(crate) fn first_strong_peak(v: &[f64], lo: usize, hi: usize, frac: f64, floo
     (lo.max(1)..hi.min(v.len() - 1)).find(|&i| v[i] >= level && v[i] >= v[i - 1] && v[i] >= v[i + 1])
 }
 
+/// The first `k` local maxima in `v[lo..hi]` (earliest first), each at least
+/// `frac` × the largest value there and above `floor`, and each more than
+/// `min_sep` indices after the one before (a flat top is one peak, and a
+/// window's main lobe is one echo): several reflections per frame. The first
+/// is [`first_strong_peak`]'s.
+pub(crate) fn strong_peaks(
+    v: &[f64],
+    lo: usize,
+    hi: usize,
+    frac: f64,
+    floor: f64,
+    k: usize,
+    min_sep: usize,
+) -> Vec<usize> {
+    let Some(first) = first_strong_peak(v, lo, hi, frac, floor) else { return Vec::new() };
+    let hi = hi.min(v.len());
+    let strongest = v[lo..hi].iter().copied().fold(0.0, f64::max);
+    let level = (frac * strongest).max(floor);
+    let mut out = vec![first];
+    for i in first + 1..hi.min(v.len() - 1) {
+        if out.len() >= k {
+            break;
+        }
+        let last = out[out.len() - 1];
+        if i > last + min_sep && v[i] >= level && v[i] >= v[i - 1] && v[i] >= v[i + 1] {
+            out.push(i);
+        }
+    }
+    out
+}
+
 pub(crate) fn median_of(v: &[f64]) -> f64 {
     if v.is_empty() {
         return 0.0;

@@ -12,7 +12,8 @@
 //! Gains (ours; the paper's field test gives none): spherical spreading 1/r
 //! (r clamped at 0.1 m) and (1 − absorption) per bounce. Roughness is not
 //! rendered (specular only), occlusion is not modelled, and only first-order
-//! reflections are rendered.
+//! reflections are rendered. A polygon around the source is a room (its
+//! walls reflect inward), any other a solid obstacle.
 
 mod streamed;
 
@@ -317,9 +318,14 @@ struct Path {
     gain: f64,
 }
 
+/// Image sources of a polygon's edges that reflect toward `listener`. A
+/// polygon around the source is a room, whose walls reflect on their inner
+/// side; any other is a solid obstacle, reflecting on its outer side. (Only
+/// outer sides were rendered before: a room's recording held the direct
+/// sound and no wall at all.)
 fn polygon_images(source: Point, obstacle: &Obstacle, listener: Point, out: &mut Vec<Path>) {
     let Shape::Polygon(poly) = &obstacle.shape else { return };
-    let ccw = poly.signed_area() > 0.0;
+    let ccw = (poly.signed_area() > 0.0) != poly.contains(source);
     for (a, b) in poly.edges() {
         let e = b - a;
         let len = e.norm();
@@ -853,6 +859,43 @@ mod tests {
         // The chirp ends T after it starts; nothing after it.
         let last = y.iter().rposition(|s| *s != 0.0).unwrap();
         assert!(((last as f64) / FS - (t0 + 0.25)).abs() <= 1.0 / FS, "last sample {last}");
+    }
+
+    /// A polygon around the source is a room: each wall's image source, for
+    /// either winding (before, only outer sides reflected and a room's
+    /// recording held no wall); a solid box beside the source reflects from
+    /// its outer side only, from the face whose reflection point lies on it.
+    #[test]
+    fn a_room_reflects_inward_and_a_box_outward() {
+        let ob = |v: &[(f64, f64)]| Obstacle {
+            shape: Shape::Polygon(
+                chirpmap_core::Polygon::new(v.iter().map(|&(x, y)| Point::new(x, y)).collect()).unwrap(),
+            ),
+            roughness: 0.0,
+            absorption: 0.2,
+        };
+        let (src, lis) = (Point::new(2.0, 2.5), Point::new(5.0, 4.0));
+        let room = [(0.0, 0.0), (8.0, 0.0), (8.0, 6.0), (0.0, 6.0)];
+        let mut want = [(2.0, -2.5), (14.0, 2.5), (2.0, 9.5), (-2.0, 2.5)];
+        want.sort_by(|a, b| a.partial_cmp(b).unwrap());
+        for winding in [room.to_vec(), room.iter().rev().copied().collect()] {
+            let mut out = Vec::new();
+            paths_at(src, &[ob(&winding)], lis, &mut out);
+            // The first path is the direct one.
+            assert!(out[0].q == src && out[0].gain == 1.0);
+            out.remove(0);
+            let mut got: Vec<(f64, f64)> = out.iter().map(|p| (p.q.x, p.q.y)).collect();
+            got.sort_by(|a, b| a.partial_cmp(b).unwrap());
+            assert_eq!(got.len(), 4, "{got:?}");
+            for (g, w) in got.iter().zip(&want) {
+                assert!((g.0 - w.0).abs() < 1e-12 && (g.1 - w.1).abs() < 1e-12, "{got:?}");
+            }
+            assert!(out.iter().all(|p| (p.gain - 0.8).abs() < 1e-12 && p.base_m == 0.0));
+        }
+        let mut out = Vec::new();
+        paths_at(src, &[ob(&[(3.0, 0.0), (6.0, 0.0), (6.0, 1.0), (3.0, 1.0)])], Point::new(6.0, 2.5), &mut out);
+        assert_eq!(out.len(), 2);
+        assert!(out[1].q.dist(Point::new(2.0, -0.5)) < 1e-12, "{:?}", out[0].q);
     }
 
     #[test]

@@ -55,7 +55,13 @@ fn echoes(syn: &Synthesized, x: &[f32], sweeps: &[Box<dyn Sweep>], dets: &[Movin
     let refs: Vec<&dyn Sweep> = sweeps.iter().map(|b| b.as_ref()).collect();
     let pose_at = pose_fn(syn.poses[0].clone());
     let lim = RangeLimits::for_chirp(0.25, A);
-    let p = DopplerParams { period_s: 0.01, frame_s: None, speaker: Point::new(0.0, 0.0), listener_id: 0 };
+    let p = DopplerParams {
+        period_s: 0.01,
+        frame_s: None,
+        speaker: Point::new(0.0, 0.0),
+        listener_id: 0,
+        echoes_per_frame: 1,
+    };
     doppler_echoes(x, f64::from(syn.sample_rate_hz), &refs, &lim, dets, &pose_at, &p).unwrap()
 }
 

@@ -49,6 +49,11 @@ pub struct MapArgs {
     /// Measurement frame length for --wav (ms). Default: the method's.
     #[arg(long)]
     pub frame_ms: Option<f64>,
+    /// Most echoes taken from each frame for --wav, earliest first, each tracked across its chirp with its
+    /// own Doppler correction (doppler method only; then the default frame is twice as long, to separate
+    /// them): 1 keeps the first reflection alone (the paper's §IV) [default: 8 for doppler, else 1].
+    #[arg(long)]
+    pub echoes_per_frame: Option<usize>,
     #[command(flatten)]
     pub chirp: ChirpArgs,
     /// Output directory (created): highlights.csv, map.png (or .svg), map.npy, map.pgm + map.yaml,
@@ -272,6 +277,7 @@ fn echoes_from_wav(
         frame_s: args.frame_ms.map(|m| m / 1000.0),
         speaker: Point::new(sx, sy),
         listener_id,
+        echoes_per_frame: args.echoes_per_frame.unwrap_or(args.method.default_echoes_per_frame()),
     };
     let got = chirpmap::RecordingEchoes::from_moving(&prep, &chirp, &poses, &opts)
         .with_context(|| format!("{} with poses {}", wav.display(), poses_path.display()))?;

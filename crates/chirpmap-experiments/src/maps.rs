@@ -273,6 +273,7 @@ pub fn synth_cases() -> Result<Vec<Case>, String> {
             frame_s: None,
             speaker: Point::new(scene.source.position[0], scene.source.position[1]),
             listener_id: 0,
+            echoes_per_frame: WavMethod::Doppler.default_echoes_per_frame(),
         };
         let chirp = ChirpSpec::from_scene(&scene);
         let got = chirpmap::RecordingEchoes::from_moving(&prep, &chirp, &poses, &opts).map_err(err)?;

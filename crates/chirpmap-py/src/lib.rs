@@ -386,7 +386,7 @@ fn range(
 /// echoes as an `(n, 8)` or `(n, 9)` table (with `sigma_m`), the chirps
 /// detected and those skipped for want of a pose.
 #[pyfunction]
-#[pyo3(signature = (samples, sample_rate, poses, speaker, method, period_s, frame_s, listener, f_start, f_end, duration, speed_of_sound, max_delta_d, pattern=None))]
+#[pyo3(signature = (samples, sample_rate, poses, speaker, method, period_s, frame_s, listener, f_start, f_end, duration, speed_of_sound, max_delta_d, pattern=None, echoes_per_frame=None))]
 #[allow(clippy::too_many_arguments)]
 fn echoes_from_recording<'py>(
     py: Python<'py>,
@@ -404,6 +404,7 @@ fn echoes_from_recording<'py>(
     speed_of_sound: f64,
     max_delta_d: Option<f64>,
     pattern: Option<&str>,
+    echoes_per_frame: Option<usize>,
 ) -> PyResult<(Bound<'py, PyAny>, usize, usize)> {
     let method: chirpmap::audio::doppler::WavMethod =
         method.parse().map_err(|e| value_error(format!("method: {e}")))?;
@@ -431,6 +432,7 @@ fn echoes_from_recording<'py>(
         frame_s,
         speaker: Point::new(speaker[0], speaker[1]),
         listener_id: listener,
+        echoes_per_frame: echoes_per_frame.unwrap_or(method.default_echoes_per_frame()),
     };
     let x = samples.as_slice().map_err(|_| value_error("samples must be a contiguous array"))?;
     check_samples(x, "samples")?;

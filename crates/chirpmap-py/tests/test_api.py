@@ -182,6 +182,12 @@ def test_review_findings_raise_value_error(tmp_path):
         assert chirpmap.simulate(pathlib.Path(os.fsdecode(odd))).seed == 5
     with pytest.raises(ValueError, match=r"channel: must be a channel number from 0, got -1"):
         chirpmap.echoes_from_recording(rec[:, 0], rate, poses[0], (0, 0), channel=-1)
+    with pytest.raises(ValueError, match=r"echoes_per_frame: must be in 1..=64, got 0"):
+        chirpmap.echoes_from_recording(rec[:, 0], rate, poses[0], (0, 0), echoes_per_frame=0)
+    with pytest.raises(TypeError, match=r"echoes_per_frame must be an int, not bool"):
+        chirpmap.echoes_from_recording(rec[:, 0], rate, poses[0], (0, 0), echoes_per_frame=True)
+    with pytest.raises(ValueError, match=r"echoes per frame: gap ranges one echo per frame"):
+        chirpmap.echoes_from_recording(rec[:, 0], rate, poses[0], (0, 0), method="gap", echoes_per_frame=3)
     with pytest.raises(ValueError, match=r"max_delta_d: must be finite and > 0, got NaN"):
         chirpmap.room_echoes(rec[:, 0], rate, (0, 0), (1, 0), input="rir", max_delta_d=float("nan"))
     # Poses handed out as arrays are a second copy, counted against the cap

@@ -634,6 +634,16 @@ impl RecordingEchoes {
         };
         let cycle = pattern_cycle(&scene_chirp, opts.pattern);
         if opts.method != WavMethod::Doppler {
+            if opts.echoes_per_frame != 1 {
+                return Err(Error::Field {
+                    field: "echoes per frame",
+                    reason: format!(
+                        "{} ranges one echo per frame; use doppler for {} (it tracks each reflection's Doppler shift)",
+                        opts.method.name(),
+                        opts.echoes_per_frame
+                    ),
+                });
+            }
             if cycle.len() != 1 || chirp.kind != SweepKind::Linear {
                 return Err(Error::Field {
                     field: "method",
@@ -680,6 +690,7 @@ impl RecordingEchoes {
             frame_s: opts.frame_s,
             speaker: opts.speaker,
             listener_id: opts.listener_id,
+            echoes_per_frame: opts.echoes_per_frame,
         };
         let pose_at = |t: f64| poses.at(t);
         let got = doppler_echoes(&prep.x, fs, &refs, &prep.lim, &dets, &pose_at, &params)?;

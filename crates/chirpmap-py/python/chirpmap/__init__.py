@@ -444,6 +444,7 @@ def echoes_from_recording(
     max_delta_d: Optional[float] = None,
     channel: int = 0,
     pattern: Optional[str] = None,
+    echoes_per_frame: Optional[int] = None,
 ) -> RecordingEchoes:
     """Echoes of a moving listener's recording, for :func:`map_echoes`.
 
@@ -470,6 +471,10 @@ def echoes_from_recording(
         pattern: the chirps' sweep directions, ``"down"``, ``"up"`` or
             ``"updown"`` (alternating, starting down); ``None``: every chirp
             from ``f_start`` to ``f_end`` (``map --wav --pattern``).
+        echoes_per_frame: most echoes per frame, earliest first, each tracked
+            across its chirp with its own Doppler correction (``"doppler"``
+            only); ``None``: 8 for ``"doppler"``, 1 otherwise (the first
+            reflection alone, the paper's §IV), as ``map --wav``.
 
     Returns:
         A :class:`RecordingEchoes`.
@@ -480,6 +485,11 @@ def echoes_from_recording(
         raise ValueError(f"poses must be an (m, 3) array t, x, y; got shape {p.shape}")
     if method not in _WAV_METHODS:
         raise ValueError(f"method: unknown method {method!r}: use doppler, gap or dechirp")
+    if echoes_per_frame is not None:
+        if isinstance(echoes_per_frame, bool) or not isinstance(echoes_per_frame, (int, np.integer)):
+            raise TypeError(f"echoes_per_frame must be an int, not {type(echoes_per_frame).__name__}")
+        if not 1 <= echoes_per_frame <= 64:
+            raise ValueError(f"echoes_per_frame: must be in 1..=64, got {echoes_per_frame}")
     echoes, chirps, skipped = _chirpmap.echoes_from_recording(
         x,
         float(sample_rate),
@@ -495,6 +505,7 @@ def echoes_from_recording(
         float(speed_of_sound),
         None if max_delta_d is None else float(max_delta_d),
         pattern,
+        None if echoes_per_frame is None else int(echoes_per_frame),
     )
     return RecordingEchoes(echoes, chirps, skipped)
 

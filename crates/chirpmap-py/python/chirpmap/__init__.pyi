@@ -99,6 +99,7 @@ def echoes_from_recording(
     max_delta_d: Optional[float] = None,
     channel: int = 0,
     pattern: Optional[str] = None,
+    echoes_per_frame: Optional[int] = None,
 ) -> RecordingEchoes:
     """Echoes of a moving listener's recording (chirpmap map --wav)."""
 
