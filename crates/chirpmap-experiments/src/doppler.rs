@@ -138,7 +138,7 @@ pub fn run_case(case: DopplerCase) -> Result<DopplerRow, String> {
         frame_s: None,
         speaker,
         listener_id: 0,
-        echoes_per_frame: 1,
+        echoes_per_frame: case.method.default_echoes_per_frame(),
     };
     let got = RecordingEchoes::from_moving(&prep, &chirp, &poses, &opts);
     let elapsed_s = started.elapsed().as_secs_f64();

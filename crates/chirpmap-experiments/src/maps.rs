@@ -237,12 +237,7 @@ pub fn particle_cases(runs: u64) -> Result<Vec<Case>, String> {
 /// 1 m/s) inside the 8 m × 6 m room, passing 8 cm from the 0.3 m pillar;
 /// 60 chirps of 0.25 s at 20 dB SNR. The synthesizer renders first-order
 /// paths only, so there are no corner echoes here.
-pub const ROOM_PILLAR_SCENE: &str = "[chirp]\nf_start = 10000.0\nf_end = 200.0\nduration = 0.25\n\
-     [source]\nposition = [2.0, 2.5]\n\
-     [[obstacles]]\nvertices = [[0.0, 0.0], [8.0, 0.0], [8.0, 6.0], [0.0, 6.0]]\nroughness = 0.0\nabsorption = 0.2\n\
-     [[obstacles]]\ncenter = [5.5, 3.8]\nradius = 0.3\nroughness = 0.0\nabsorption = 0.2\n\
-     [[listeners]]\nstart = [4.0, 1.2]\nspeed = 1.0\nspin_rate = 0.5\n\
-     [synth]\nchirps = 60\ngap_s = 0.25\nsnr_db = 20.0\n";
+pub const ROOM_PILLAR_SCENE: &str = include_str!("../../../examples/room-walk/scene.toml");
 
 /// The field environments and the room with a pillar from synthesized
 /// recordings (20 dB SNR), ranged per 10 ms frame at the listener's poses
