@@ -11,9 +11,10 @@
 //! stationary in the point, so per-sample delays stay exact to first order).
 //! Gains (ours; the paper's field test gives none): spherical spreading 1/r
 //! (r clamped at 0.1 m) and (1 − absorption) per bounce. Roughness is not
-//! rendered (specular only), occlusion is not modelled, and only first-order
-//! reflections are rendered. A polygon around the source is a room (its
-//! walls reflect inward), any other a solid obstacle.
+//! rendered (specular only) and occlusion is not modelled. Reflections are
+//! first-order, or with `reflection_order = 2` also every ordered pair of
+//! polygon edges (a room's corner echoes). A polygon around the source is a
+//! room (its walls reflect inward), any other a solid obstacle.
 
 mod streamed;
 
@@ -73,6 +74,9 @@ pub struct SynthConfig {
     /// Direction of the chirps (issue 11): `"down"`, `"up"` or `"updown"`
     /// (alternating, starting down); none = every chirp as `[chirp]` writes it.
     pub pattern: Option<ChirpPattern>,
+    /// Highest reflection order rendered: 1 (each reflector once) or 2 (also
+    /// every pair of polygon edges: a room's corner echoes, issue 9).
+    pub reflection_order: u32,
 }
 
 /// Sweep directions of a chirp train (issue 11, item 1). Alternating up and
@@ -141,6 +145,7 @@ impl Default for SynthConfig {
             peak: 0.5,
             pose_period_s: 0.01,
             pattern: None,
+            reflection_order: 1,
         }
     }
 }
@@ -166,6 +171,9 @@ impl SynthConfig {
         }
         if !(8_000..=768_000).contains(&self.sample_rate_hz) {
             return bad("synth.sample_rate_hz", format!("must be in 8000..=768000, got {}", self.sample_rate_hz));
+        }
+        if !(1..=2).contains(&self.reflection_order) {
+            return bad("synth.reflection_order", format!("must be 1 or 2, got {}", self.reflection_order));
         }
         if !(self.peak > 0.0 && self.peak <= 1.0) {
             return bad("synth.peak", format!("must be in (0, 1], got {}", Num(self.peak)));
@@ -318,50 +326,126 @@ struct Path {
     gain: f64,
 }
 
-/// Image sources of a polygon's edges that reflect toward `listener`. A
-/// polygon around the source is a room, whose walls reflect on their inner
-/// side; any other is a solid obstacle, reflecting on its outer side. (Only
-/// outer sides were rendered before: a room's recording held the direct
-/// sound and no wall at all.)
-fn polygon_images(source: Point, obstacle: &Obstacle, listener: Point, out: &mut Vec<Path>) {
-    let Shape::Polygon(poly) = &obstacle.shape else { return };
-    let ccw = (poly.signed_area() > 0.0) != poly.contains(source);
-    for (a, b) in poly.edges() {
-        let e = b - a;
-        let len = e.norm();
-        if len < 1e-12 {
-            continue;
+/// A polygon edge as a mirror: its ends, the unit normal of its reflecting
+/// side and the gain of one bounce. A polygon around the source is a room,
+/// whose walls reflect on their inner side; any other is a solid obstacle,
+/// reflecting on its outer side. (Only outer sides were rendered before: a
+/// room's recording held the direct sound and no wall at all.)
+#[derive(Debug, Clone, Copy)]
+struct Mirror {
+    a: Point,
+    b: Point,
+    n: Point,
+    /// The edge's squared length, as `len · len`.
+    len2: f64,
+    gain: f64,
+    /// Index of its polygon among the obstacles.
+    obstacle: usize,
+}
+
+fn mirrors(source: Point, obstacles: &[Obstacle]) -> Vec<Mirror> {
+    let mut out = Vec::new();
+    for (oi, o) in obstacles.iter().enumerate() {
+        let Shape::Polygon(poly) = &o.shape else { continue };
+        let ccw = (poly.signed_area() > 0.0) != poly.contains(source);
+        for (a, b) in poly.edges() {
+            let e = b - a;
+            let len = e.norm();
+            if len < 1e-12 {
+                continue;
+            }
+            let n = if ccw { Point::new(e.y, -e.x) } else { Point::new(-e.y, e.x) } * (1.0 / len);
+            out.push(Mirror { a, b, n, len2: len * len, gain: 1.0 - o.absorption, obstacle: oi });
         }
-        let n = if ccw { Point::new(e.y, -e.x) } else { Point::new(-e.y, e.x) } * (1.0 / len);
-        let hs = (source - a).dot(n);
-        let hl = (listener - a).dot(n);
-        if hs <= 0.0 || hl <= 0.0 {
-            continue;
-        }
-        let image = source - n * (2.0 * hs);
-        // Where the image→listener segment crosses the edge's line.
-        let u = hs / (hs + hl);
-        let hit = image + (listener - image) * u;
-        let along = (hit - a).dot(e) / (len * len);
-        if !(0.0..=1.0).contains(&along) {
-            continue;
-        }
-        out.push(Path { base_m: 0.0, q: image, gain: 1.0 - obstacle.absorption });
+    }
+    out
+}
+
+impl Mirror {
+    /// Where the segment from `from` (behind the mirror, at depth `h_from`
+    /// > 0) to `to` (in front, at height `h_to` > 0) crosses it, if on the edge.
+    fn crossing(&self, from: Point, h_from: f64, to: Point, h_to: f64) -> Option<Point> {
+        let hit = from + (to - from) * (h_from / (h_from + h_to));
+        let along = (hit - self.a).dot(self.b - self.a) / self.len2;
+        (0.0..=1.0).contains(&along).then_some(hit)
     }
 }
 
-fn paths_at(source: Point, obstacles: &[Obstacle], listener: Point, out: &mut Vec<Path>) {
+/// Image sources (Allen and Berkley 1979) of the mirrors that reflect from
+/// `source` to `listener`, each mirror once; the reflection point on its edge
+/// (no occlusion).
+fn first_order(source: Point, mirrors: &[Mirror], listener: Point, out: &mut Vec<Path>) {
+    for m in mirrors {
+        let (hs, hl) = ((source - m.a).dot(m.n), (listener - m.a).dot(m.n));
+        if hs <= 0.0 || hl <= 0.0 {
+            continue;
+        }
+        let image = source - m.n * (2.0 * hs);
+        if m.crossing(image, hs, listener, hl).is_some() {
+            out.push(Path { base_m: 0.0, q: image, gain: m.gain });
+        }
+    }
+}
+
+/// Second-order image sources: each ordered pair of different mirrors.
+fn second_order(source: Point, mirrors: &[Mirror], listener: Point, out: &mut Vec<Path>) {
+    for (i, m1) in mirrors.iter().enumerate() {
+        let hs = (source - m1.a).dot(m1.n);
+        if hs <= 0.0 {
+            continue;
+        }
+        let i1 = source - m1.n * (2.0 * hs);
+        for (j, m2) in mirrors.iter().enumerate() {
+            if i == j {
+                continue;
+            }
+            // The first image in front of the second mirror, the listener too.
+            let (h1, hl) = ((i1 - m2.a).dot(m2.n), (listener - m2.a).dot(m2.n));
+            if h1 <= 0.0 || hl <= 0.0 {
+                continue;
+            }
+            let i2 = i1 - m2.n * (2.0 * h1);
+            let Some(p2) = m2.crossing(i2, h1, listener, hl) else { continue };
+            // The second bounce point in front of the first mirror.
+            let hp2 = (p2 - m1.a).dot(m1.n);
+            if hp2 <= 0.0 || m1.crossing(i1, hs, p2, hp2).is_none() {
+                continue;
+            }
+            out.push(Path { base_m: 0.0, q: i2, gain: m1.gain * m2.gain });
+        }
+    }
+}
+
+/// The paths from `source` to `listener`: the direct one, then each
+/// obstacle's first-order reflections in the scene's order, then (with
+/// `order` 2) the wall–wall pairs, both bounce points on their edges (no
+/// occlusion, and no circle in a second-order path).
+fn paths_at(
+    source: Point,
+    obstacles: &[Obstacle],
+    mirrors: &[Mirror],
+    order: u32,
+    listener: Point,
+    out: &mut Vec<Path>,
+) {
     out.clear();
     out.push(Path { base_m: 0.0, q: source, gain: 1.0 });
-    for o in obstacles {
+    for (oi, o) in obstacles.iter().enumerate() {
         match &o.shape {
             Shape::Circle(c) => {
                 if let Some(p) = specular_point_on_circle(source, listener, c) {
                     out.push(Path { base_m: source.dist(p), q: p, gain: 1.0 - o.absorption });
                 }
             }
-            Shape::Polygon(_) => polygon_images(source, o, listener, out),
+            Shape::Polygon(_) => {
+                let from = mirrors.partition_point(|m| m.obstacle < oi);
+                let to = mirrors.partition_point(|m| m.obstacle <= oi);
+                first_order(source, &mirrors[from..to], listener, out);
+            }
         }
+    }
+    if order >= 2 {
+        second_order(source, mirrors, listener, out);
     }
 }
 
@@ -429,6 +513,8 @@ pub(crate) struct Renderer<'a> {
     /// Per sweep of the cycle: `(f0, ½·rate)` of a linear sweep (inlined phase).
     linear: Vec<Option<(f64, f64)>>,
     obstacles: Vec<Obstacle>,
+    /// The polygons' edges as mirrors, by obstacle.
+    mirrors: Vec<Mirror>,
     source: Point,
     speed_of_sound: f64,
     fs: f64,
@@ -501,6 +587,7 @@ impl<'a> Renderer<'a> {
             cfg,
             sweeps,
             linear,
+            mirrors: mirrors(scene.source_position(), &obstacles),
             obstacles,
             source: scene.source_position(),
             speed_of_sound: a,
@@ -531,7 +618,7 @@ impl<'a> Renderer<'a> {
         for b0 in (start..end).step_by(POSE_BLOCK) {
             let b1 = (b0 + POSE_BLOCK).min(self.n);
             let p_b = listener_position(l, b1 as f64 / fs);
-            paths_at(self.source, &self.obstacles, p_a, &mut paths);
+            paths_at(self.source, &self.obstacles, &self.mirrors, cfg.reflection_order, p_a, &mut paths);
             let len = (b1 - b0) as f64;
             let y = &mut out[b0 - start..b1 - start];
             for p in &paths {
@@ -880,7 +967,8 @@ mod tests {
         want.sort_by(|a, b| a.partial_cmp(b).unwrap());
         for winding in [room.to_vec(), room.iter().rev().copied().collect()] {
             let mut out = Vec::new();
-            paths_at(src, &[ob(&winding)], lis, &mut out);
+            let obs = [ob(&winding)];
+            paths_at(src, &obs, &mirrors(src, &obs), 1, lis, &mut out);
             // The first path is the direct one.
             assert!(out[0].q == src && out[0].gain == 1.0);
             out.remove(0);
@@ -893,9 +981,65 @@ mod tests {
             assert!(out.iter().all(|p| (p.gain - 0.8).abs() < 1e-12 && p.base_m == 0.0));
         }
         let mut out = Vec::new();
-        paths_at(src, &[ob(&[(3.0, 0.0), (6.0, 0.0), (6.0, 1.0), (3.0, 1.0)])], Point::new(6.0, 2.5), &mut out);
+        let obs = [ob(&[(3.0, 0.0), (6.0, 0.0), (6.0, 1.0), (3.0, 1.0)])];
+        paths_at(src, &obs, &mirrors(src, &obs), 1, Point::new(6.0, 2.5), &mut out);
         assert_eq!(out.len(), 2);
         assert!(out[1].q.dist(Point::new(2.0, -0.5)) < 1e-12, "{:?}", out[0].q);
+    }
+
+    /// Second order against the exact module's corner echoes (images of
+    /// images with every leg checked, its own code), first and second order,
+    /// equal lengths merged as it merges them: an empty 8 m × 6 m room (60
+    /// listener positions) and an open corner of two finite walls (thin
+    /// boxes facing the source; 60 positions in front of both), where bounce
+    /// points fall off the walls' ends.
+    #[test]
+    fn second_order_paths_are_the_exact_corner_echoes() {
+        use chirpmap_core::exact::{ExactOptions, ExactScene, Pose, exact_echoes};
+        let poly = |v: &[(f64, f64)]| Obstacle {
+            shape: Shape::Polygon(
+                chirpmap_core::Polygon::new(v.iter().map(|&(x, y)| Point::new(x, y)).collect()).unwrap(),
+            ),
+            roughness: 0.0,
+            absorption: 0.2,
+        };
+        let room = vec![poly(&[(0.0, 0.0), (8.0, 0.0), (8.0, 6.0), (0.0, 6.0)])];
+        let corner = vec![
+            poly(&[(-3.0, -4.0), (3.0, -4.0), (3.0, -3.7), (-3.0, -3.7)]),
+            poly(&[(3.5, -2.0), (3.8, -2.0), (3.8, 2.0), (3.5, 2.0)]),
+        ];
+        let cases = [
+            (room, Point::new(2.0, 2.5), (0.3, 7.4, 0.4, 5.2)),
+            (corner, Point::new(0.0, 0.0), (-5.0, 8.0, -3.5, 6.0)),
+        ];
+        let mut second = 0;
+        for (obs, src, (x0, wx, y0, wy)) in cases {
+            let ms = mirrors(src, &obs);
+            let scene = ExactScene::from_obstacles(&obs);
+            for k in 0..60 {
+                let lis = Point::new(x0 + wx * f64::from(k % 10) / 9.0, y0 + wy * f64::from(k / 10) / 5.0);
+                for order in [1, 2] {
+                    let mut out = Vec::new();
+                    paths_at(src, &obs, &ms, order, lis, &mut out);
+                    let mut got: Vec<f64> = out[1..].iter().map(|p| p.base_m + p.q.dist(lis) - src.dist(lis)).collect();
+                    got.sort_by(f64::total_cmp);
+                    got.dedup_by(|b, a| (*b - *a).abs() <= 1e-6);
+                    let opts = ExactOptions { second_order: order == 2, ..ExactOptions::default() };
+                    let pose = [Pose { t_s: 0.0, listener: lis }];
+                    let mut want: Vec<f64> =
+                        exact_echoes(src, &pose, &scene, &opts).unwrap().iter().map(|e| e.delta_d_m).collect();
+                    want.sort_by(f64::total_cmp);
+                    assert_eq!(got.len(), want.len(), "order {order} at {lis:?}: {got:?} vs {want:?}");
+                    for (g, w) in got.iter().zip(&want) {
+                        assert!((g - w).abs() < 1e-9, "order {order} at {lis:?}: {got:?} vs {want:?}");
+                    }
+                    if order == 2 {
+                        second += out.len() - 1;
+                    }
+                }
+            }
+        }
+        assert!(second > 500, "{second} paths");
     }
 
     #[test]

@@ -235,8 +235,8 @@ pub fn particle_cases(runs: u64) -> Result<Vec<Case>, String> {
 
 /// The room with a pillar as a recording: a listener circling (radius 2 m,
 /// 1 m/s) inside the 8 m × 6 m room, passing 8 cm from the 0.3 m pillar;
-/// 60 chirps of 0.25 s at 20 dB SNR. The synthesizer renders first-order
-/// paths only, so there are no corner echoes here.
+/// 60 chirps of 0.25 s at 20 dB SNR; first-order paths (`room-corners`
+/// adds the second order).
 pub const ROOM_PILLAR_SCENE: &str = include_str!("../../../examples/room-walk/scene.toml");
 
 /// The field environments and the room with a pillar from synthesized
@@ -248,14 +248,18 @@ pub const ROOM_PILLAR_SCENE: &str = include_str!("../../../examples/room-walk/sc
 /// session 22).
 pub fn synth_cases() -> Result<Vec<Case>, String> {
     let mut out = Vec::new();
+    // The room's `[synth]` table is the file's last: its corner echoes
+    // (session 23) are one more line of it.
+    let corners = format!("{ROOM_PILLAR_SCENE}reflection_order = 2\n");
     let cases = [
-        ("field-A", field_scene('A'), [-15.0, -10.0, 15.0, 8.0]),
-        ("field-B", field_scene('B'), [-15.0, -10.0, 15.0, 8.0]),
-        ("room-pillar", ROOM_PILLAR_SCENE, [-3.0, -3.0, 11.0, 9.0]),
+        ("field-A", field_scene('A').to_string(), [-15.0, -10.0, 15.0, 8.0]),
+        ("field-B", field_scene('B').to_string(), [-15.0, -10.0, 15.0, 8.0]),
+        ("room-pillar", ROOM_PILLAR_SCENE.to_string(), [-3.0, -3.0, 11.0, 9.0]),
+        ("room-corners", corners, [-3.0, -3.0, 11.0, 9.0]),
     ];
     for (name, text, bounds) in cases {
         let err = |e: chirpmap::Error| format!("{name}: {e}");
-        let (scene, cfg) = chirpmap::parse_scene(text).map_err(err)?;
+        let (scene, cfg) = chirpmap::parse_scene(&text).map_err(err)?;
         let rec = chirpmap::synth(&scene, &cfg).map_err(err)?;
         let fs = f64::from(rec.sample_rate_hz);
         let poses = PoseTrack::new(rec.poses.first().cloned().unwrap_or_default()).map_err(err)?;

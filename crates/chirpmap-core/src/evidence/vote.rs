@@ -400,7 +400,7 @@ fn image_echo(ctx: &Ctx, k: usize, trusted: &[Wall], reach: &[(Point, Point)]) -
 /// `at` or from `at` to the listener: a reflector behind a wall is the
 /// image of a higher-order reflection, as for lines ([`super::lines`]'s
 /// occlusion test).
-fn hidden(ctx: &Ctx, ks: &[usize], at: Point, walls: &[(Point, Point)]) -> bool {
+pub(crate) fn hidden(ctx: &Ctx, ks: &[usize], at: Point, walls: &[(Point, Point)]) -> bool {
     let n = ks
         .iter()
         .filter(|&&k| {
