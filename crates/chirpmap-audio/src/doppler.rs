@@ -219,6 +219,15 @@ pub fn default_frame_s(chirp_s: f64, band_hz: f64, echoes_per_frame: usize) -> f
     if echoes_per_frame <= 1 { single } else { (2.0 * single).min(0.25 * chirp_s).max(single) }
 }
 
+/// With several echoes per frame, a peak counts from this fraction of the
+/// frame's strongest (one echo per frame: 0.3, the first strong reflection).
+/// In a room the walls and their corners are louder than a pillar: at 0.3
+/// the pillar's echo was missed in 310 of 1 249 frames of a walk round it,
+/// each of which carved free space through it, and with corner echoes it
+/// was lost (EXPERIMENTS.md, session 23). At 0.1 it was found and the
+/// moving-wall benchmark's doppler rows stayed the same.
+pub const MULTI_PEAK_FRAC: f64 = 0.1;
+
 /// Largest [`DopplerParams::echoes_per_frame`]: a frame's spectrum resolves
 /// a few tens of reflections at most (a 20 ms frame separates beats 50 Hz apart).
 pub const MAX_ECHOES_PER_FRAME: usize = 64;
@@ -486,7 +495,8 @@ pub fn doppler_echoes(
             let t_mid = (n0 as f64 + 0.5 * frame as f64) / fs;
             let Some(pos) = pose_at(t_mid) else { continue };
             let d_rate = a * (1.0 - sigma_d);
-            for i in strong_peaks(&masked, lo, hi, 0.3, floor, p.echoes_per_frame, 2) {
+            let frac = if p.echoes_per_frame > 1 { MULTI_PEAK_FRAC } else { 0.3 };
+            for i in strong_peaks(&masked, lo, hi, frac, floor, p.echoes_per_frame, 2) {
                 let Some((pr, _)) = peak_in(&v, i - 1, i + 2) else { continue };
                 meas.push(FrameMeas {
                     chirp: ci,
