@@ -948,26 +948,26 @@ mod tests {
         assert!(((last as f64) / FS - (t0 + 0.25)).abs() <= 1.0 / FS, "last sample {last}");
     }
 
+    /// A polygon obstacle (m) with absorption 0.2.
+    fn polygon(v: &[(f64, f64)]) -> Obstacle {
+        let shape =
+            Shape::Polygon(chirpmap_core::Polygon::new(v.iter().map(|&(x, y)| Point::new(x, y)).collect()).unwrap());
+        Obstacle { shape, roughness: 0.0, absorption: 0.2 }
+    }
+
     /// A polygon around the source is a room: each wall's image source, for
     /// either winding (before, only outer sides reflected and a room's
     /// recording held no wall); a solid box beside the source reflects from
     /// its outer side only, from the face whose reflection point lies on it.
     #[test]
     fn a_room_reflects_inward_and_a_box_outward() {
-        let ob = |v: &[(f64, f64)]| Obstacle {
-            shape: Shape::Polygon(
-                chirpmap_core::Polygon::new(v.iter().map(|&(x, y)| Point::new(x, y)).collect()).unwrap(),
-            ),
-            roughness: 0.0,
-            absorption: 0.2,
-        };
         let (src, lis) = (Point::new(2.0, 2.5), Point::new(5.0, 4.0));
         let room = [(0.0, 0.0), (8.0, 0.0), (8.0, 6.0), (0.0, 6.0)];
         let mut want = [(2.0, -2.5), (14.0, 2.5), (2.0, 9.5), (-2.0, 2.5)];
         want.sort_by(|a, b| a.partial_cmp(b).unwrap());
         for winding in [room.to_vec(), room.iter().rev().copied().collect()] {
             let mut out = Vec::new();
-            let obs = [ob(&winding)];
+            let obs = [polygon(&winding)];
             paths_at(src, &obs, &mirrors(src, &obs), 1, lis, &mut out);
             // The first path is the direct one.
             assert!(out[0].q == src && out[0].gain == 1.0);
@@ -981,10 +981,10 @@ mod tests {
             assert!(out.iter().all(|p| (p.gain - 0.8).abs() < 1e-12 && p.base_m == 0.0));
         }
         let mut out = Vec::new();
-        let obs = [ob(&[(3.0, 0.0), (6.0, 0.0), (6.0, 1.0), (3.0, 1.0)])];
+        let obs = [polygon(&[(3.0, 0.0), (6.0, 0.0), (6.0, 1.0), (3.0, 1.0)])];
         paths_at(src, &obs, &mirrors(src, &obs), 1, Point::new(6.0, 2.5), &mut out);
         assert_eq!(out.len(), 2);
-        assert!(out[1].q.dist(Point::new(2.0, -0.5)) < 1e-12, "{:?}", out[0].q);
+        assert!(out[1].q.dist(Point::new(2.0, -0.5)) < 1e-12, "{:?}", out[1].q);
     }
 
     /// Second order against the exact module's corner echoes (images of
@@ -996,17 +996,10 @@ mod tests {
     #[test]
     fn second_order_paths_are_the_exact_corner_echoes() {
         use chirpmap_core::exact::{ExactOptions, ExactScene, Pose, exact_echoes};
-        let poly = |v: &[(f64, f64)]| Obstacle {
-            shape: Shape::Polygon(
-                chirpmap_core::Polygon::new(v.iter().map(|&(x, y)| Point::new(x, y)).collect()).unwrap(),
-            ),
-            roughness: 0.0,
-            absorption: 0.2,
-        };
-        let room = vec![poly(&[(0.0, 0.0), (8.0, 0.0), (8.0, 6.0), (0.0, 6.0)])];
+        let room = vec![polygon(&[(0.0, 0.0), (8.0, 0.0), (8.0, 6.0), (0.0, 6.0)])];
         let corner = vec![
-            poly(&[(-3.0, -4.0), (3.0, -4.0), (3.0, -3.7), (-3.0, -3.7)]),
-            poly(&[(3.5, -2.0), (3.8, -2.0), (3.8, 2.0), (3.5, 2.0)]),
+            polygon(&[(-3.0, -4.0), (3.0, -4.0), (3.0, -3.7), (-3.0, -3.7)]),
+            polygon(&[(3.5, -2.0), (3.8, -2.0), (3.8, 2.0), (3.5, 2.0)]),
         ];
         let cases = [
             (room, Point::new(2.0, 2.5), (0.3, 7.4, 0.4, 5.2)),
