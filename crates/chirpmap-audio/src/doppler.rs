@@ -206,17 +206,28 @@ pub struct DopplerParams {
 }
 
 /// The frame length (s) when none is given: 4·sqrt(T/B), the dechirp
-/// method's, for one echo per frame; twice that (at most a quarter of the
-/// chirp, at least the former) for several. A Hann frame of length F
-/// resolves beats 2/F apart, reflections 2a/(|k|F) apart in Δd: 0.44 m at
-/// 20 ms for the 0.25 s 10 → 0.2 kHz chirp, closer than a room's walls often
-/// are, and a neighbour's main lobe pulls each peak. Measured on a
-/// synthesized walk in a room with a pillar (EXPERIMENTS.md, session 23):
-/// the echoes within 2 cm of their true Δd went from 35–51 % per wall at
-/// 20 ms to 74–77 % at 40 ms, and the four walls from 0–2 of 4 found to 4.
-pub fn default_frame_s(chirp_s: f64, band_hz: f64, echoes_per_frame: usize) -> f64 {
+/// method's, for one echo per frame or a non-linear sweep; twice that (at
+/// most a quarter of the chirp, at least the former) for several echoes of a
+/// linear one. A Hann frame of length F resolves beats 2/F apart,
+/// reflections 2a/(|k|F) apart in Δd: 0.87 m at 20 ms and 0.43 m at 40 ms for
+/// the 0.25 s 10 → 0.2 kHz chirp, and a neighbour's main lobe pulls each
+/// peak. Measured on a synthesized walk in a room with a pillar
+/// (EXPERIMENTS.md, session 23): the echoes within 2 cm of their true Δd
+/// went from 35–51 % per wall at 20 ms to 74–77 % at 40 ms, and the four
+/// walls from 0–2 of 4 found to 4. An exponential sweep's local rate varies
+/// along it, and the longer frame smeared it: on the moving wall at 1 m/s,
+/// median error 1.9 cm at 20 ms, 7.1 cm at 40 ms (review, session 23).
+pub fn default_frame_s(chirp_s: f64, band_hz: f64, echoes_per_frame: usize, linear: bool) -> f64 {
     let single = 4.0 * (chirp_s / band_hz).sqrt();
-    if echoes_per_frame <= 1 { single } else { (2.0 * single).min(0.25 * chirp_s).max(single) }
+    if echoes_per_frame <= 1 || !linear { single } else { (2.0 * single).min(0.25 * chirp_s).max(single) }
+}
+
+/// Whether `sweep`'s frequency is linear in time (at a quarter, half and
+/// three quarters of its duration, to 10⁻⁹ of its band).
+fn is_linear(sweep: &dyn Sweep) -> bool {
+    let (t, f0, f1) = (sweep.duration_s(), sweep.f_start_hz(), sweep.f_end_hz());
+    let tol = 1e-9 * (f1 - f0).abs();
+    [0.25, 0.5, 0.75].iter().all(|&u| sweep.freq_at(u * t).is_some_and(|f| (f - (f0 + u * (f1 - f0))).abs() <= tol))
 }
 
 /// With several echoes per frame, a peak counts from this fraction of the
@@ -229,7 +240,7 @@ pub fn default_frame_s(chirp_s: f64, band_hz: f64, echoes_per_frame: usize) -> f
 pub const MULTI_PEAK_FRAC: f64 = 0.1;
 
 /// Largest [`DopplerParams::echoes_per_frame`]: a frame's spectrum resolves
-/// a few tens of reflections at most (a 20 ms frame separates beats 50 Hz apart).
+/// a few tens of reflections at most (a 20 ms frame separates beats 100 Hz apart).
 pub const MAX_ECHOES_PER_FRAME: usize = 64;
 
 /// One frame's measurement before the Doppler correction.
@@ -330,7 +341,7 @@ pub fn doppler_echoes(
     let band = (first.f_start_hz() - first.f_end_hz()).abs();
     let frame = match p.frame_s {
         Some(s) => (s * fs).round(),
-        None => (default_frame_s(t_chirp, band, p.echoes_per_frame) * fs).round(),
+        None => (default_frame_s(t_chirp, band, p.echoes_per_frame, sweeps.iter().all(|s| is_linear(*s))) * fs).round(),
     };
     let n_chirp = t_chirp * fs;
     if !(frame >= 16.0 && frame < n_chirp) {
@@ -604,20 +615,26 @@ const LINK_MAX_SKIP: f64 = 2.0;
 /// (Δḋ = 0), predicted along each track's last slope, within
 /// [`TRACK_GATE_M`], closest pairs first; an echo left over starts a track.
 /// Within a linear sweep a reflection's uncorrected Δd moves by 2Δḋ per
-/// second (module docs, 4): under 4 cm per 10 ms frame at a walker's 1 m/s,
-/// while a 20 ms frame separates reflections about 0.4 m apart in Δd.
+/// second (module docs, 4), and |Δḋ| ≤ 2|v|: under 4 cm per 10 ms frame at
+/// a walker's 1 m/s, while a 40 ms frame separates reflections about 0.43 m
+/// apart in Δd (2a/(|k|F)). A track of one echo has no slope yet: its gate
+/// also covers that bound, 4 × the listener's move since (plus 5 cm), or a
+/// listener at 8 m/s toward a wall (Δḋ ≈ −16 m/s, 0.31 m per frame) linked
+/// no frame and lost the wall (review, session 23).
 fn link_tracks(meas: &[FrameMeas], chirp: &[usize], sweep: &dyn Sweep, a: f64, period_s: f64) -> Vec<Vec<usize>> {
     struct Track {
         idx: Vec<usize>,
         t_s: f64,
         d_m: f64,
         slope_mps: f64,
+        pos: Point,
     }
     let mut tracks: Vec<Track> = Vec::new();
     let mut k = 0;
     while k < chirp.len() {
         // One frame: the echoes sharing its mid-time (pushed together).
         let t_s = meas[chirp[k]].t_mid_s;
+        let pos = meas[chirp[k]].pos;
         let mut end = k;
         while end < chirp.len() && meas[chirp[end]].t_mid_s == t_s {
             end += 1;
@@ -632,9 +649,10 @@ fn link_tracks(meas: &[FrameMeas], chirp: &[usize], sweep: &dyn Sweep, a: f64, p
                 continue;
             }
             let pred = tr.d_m + tr.slope_mps * dt;
+            let gate = if tr.idx.len() == 1 { TRACK_GATE_M.max(4.0 * pos.dist(tr.pos) + 0.05) } else { TRACK_GATE_M };
             for (q, &(_, d)) in frame.iter().enumerate() {
                 let cost = (d - pred).abs();
-                if cost <= TRACK_GATE_M {
+                if cost <= gate {
                     pairs.push((cost, j, q));
                 }
             }
@@ -652,11 +670,11 @@ fn link_tracks(meas: &[FrameMeas], chirp: &[usize], sweep: &dyn Sweep, a: f64, p
             let tr = &mut tracks[j];
             tr.slope_mps = (d - tr.d_m) / (t_s - tr.t_s);
             tr.idx.push(i);
-            (tr.t_s, tr.d_m) = (t_s, d);
+            (tr.t_s, tr.d_m, tr.pos) = (t_s, d, pos);
         }
         for (q, &(i, d)) in frame.iter().enumerate() {
             if !echo_taken[q] {
-                tracks.push(Track { idx: vec![i], t_s, d_m: d, slope_mps: 0.0 });
+                tracks.push(Track { idx: vec![i], t_s, d_m: d, slope_mps: 0.0, pos });
             }
         }
     }
@@ -1010,6 +1028,39 @@ mod tests {
             })
             .fold(0.0, f64::max);
         assert!(one.is_empty() || worst > 0.01, "{worst}");
+    }
+
+    /// A listener at 8 m/s heading for a wall: the path difference changes at
+    /// 16 m/s and the uncorrected Δd by 0.31 m per 10 ms frame, beyond the
+    /// 0.15 m gate. Its one track must still form (it gave no echo at all).
+    #[test]
+    fn a_fast_changing_reflection_is_still_tracked() {
+        let sweep = LinearChirp::new(10_000.0, 200.0, 0.25).unwrap();
+        let sweeps: [&dyn Sweep; 1] = [&sweep];
+        let det = Detection { onset_sample: 0, strength: 1.0, ncc: 1.0 };
+        let dets = [MovingDetection { detection: det, sweep: 0, scale: 1.0 }];
+        for (speed, rate) in [(1.0, 1.5), (4.0, 7.9), (8.0, -16.0), (8.0, 16.0)] {
+            let mut meas = Vec::new();
+            for i in 0..15 {
+                let tau = 0.06 + 0.01 * f64::from(i);
+                let dd = 12.0 + rate * (tau - 0.13);
+                let pos = Point::new(1.0 + speed * tau, 1.0);
+                meas.push(FrameMeas { t_mid_s: tau, pos, ..frame(&sweep, tau, dd, 0.5, rate) });
+            }
+            let p = DopplerParams {
+                period_s: 0.01,
+                frame_s: None,
+                speaker: Point::new(0.0, 0.0),
+                listener_id: 0,
+                echoes_per_frame: 8,
+            };
+            let got = correct(&meas, &sweeps, &dets, A, 48_000.0, &p);
+            assert_eq!(got.len(), 15, "{speed} m/s, Δḋ {rate}");
+            for g in &got {
+                let want = 12.0 + rate * (g.echo.t_s - 0.13);
+                assert!((g.echo.delta_d_m - want).abs() < 1e-4, "{speed} m/s: {} vs {want}", g.echo.delta_d_m);
+            }
+        }
     }
 
     /// `strong_peaks` against the peaks it is built to find: three lobes of

@@ -24,7 +24,7 @@ use crate::detect::taper_gain;
 use crate::error::AudioError;
 use crate::wav::SampleFormat;
 use chirpmap_core::error::Num;
-use chirpmap_core::geometry::specular_point_on_circle;
+use chirpmap_core::geometry::{point_segment_distance, specular_point_on_circle};
 use chirpmap_core::scene::{ChirpSpec, ListenerSpec, SweepKind};
 use chirpmap_core::{Obstacle, Point, Scene, Shape};
 
@@ -343,11 +343,16 @@ struct Mirror {
     obstacle: usize,
 }
 
-fn mirrors(source: Point, obstacles: &[Obstacle]) -> Vec<Mirror> {
+/// A source on an edge (a speaker on a wall) is neither inside nor outside
+/// by the even–odd test (which puts some edges in, others out): there the
+/// listener's side decides, `listener` being where it starts.
+fn mirrors(source: Point, obstacles: &[Obstacle], listener: Point) -> Vec<Mirror> {
     let mut out = Vec::new();
     for (oi, o) in obstacles.iter().enumerate() {
         let Shape::Polygon(poly) = &o.shape else { continue };
-        let ccw = (poly.signed_area() > 0.0) != poly.contains(source);
+        let on_edge = poly.edges().any(|(a, b)| point_segment_distance(source, a, b) <= 1e-9);
+        let room = if on_edge { poly.contains(listener) } else { poly.contains(source) };
+        let ccw = (poly.signed_area() > 0.0) != room;
         for (a, b) in poly.edges() {
             let e = b - a;
             let len = e.norm();
@@ -513,8 +518,8 @@ pub(crate) struct Renderer<'a> {
     /// Per sweep of the cycle: `(f0, ½·rate)` of a linear sweep (inlined phase).
     linear: Vec<Option<(f64, f64)>>,
     obstacles: Vec<Obstacle>,
-    /// The polygons' edges as mirrors, by obstacle.
-    mirrors: Vec<Mirror>,
+    /// The polygons' edges as mirrors, by obstacle, for each listener.
+    mirrors: Vec<Vec<Mirror>>,
     source: Point,
     speed_of_sound: f64,
     fs: f64,
@@ -587,7 +592,11 @@ impl<'a> Renderer<'a> {
             cfg,
             sweeps,
             linear,
-            mirrors: mirrors(scene.source_position(), &obstacles),
+            mirrors: scene
+                .listeners
+                .iter()
+                .map(|l| mirrors(scene.source_position(), &obstacles, listener_position(l, 0.0)))
+                .collect(),
             obstacles,
             source: scene.source_position(),
             speed_of_sound: a,
@@ -618,7 +627,7 @@ impl<'a> Renderer<'a> {
         for b0 in (start..end).step_by(POSE_BLOCK) {
             let b1 = (b0 + POSE_BLOCK).min(self.n);
             let p_b = listener_position(l, b1 as f64 / fs);
-            paths_at(self.source, &self.obstacles, &self.mirrors, cfg.reflection_order, p_a, &mut paths);
+            paths_at(self.source, &self.obstacles, &self.mirrors[li], cfg.reflection_order, p_a, &mut paths);
             let len = (b1 - b0) as f64;
             let y = &mut out[b0 - start..b1 - start];
             for p in &paths {
@@ -968,7 +977,7 @@ mod tests {
         for winding in [room.to_vec(), room.iter().rev().copied().collect()] {
             let mut out = Vec::new();
             let obs = [polygon(&winding)];
-            paths_at(src, &obs, &mirrors(src, &obs), 1, lis, &mut out);
+            paths_at(src, &obs, &mirrors(src, &obs, lis), 1, lis, &mut out);
             // The first path is the direct one.
             assert!(out[0].q == src && out[0].gain == 1.0);
             out.remove(0);
@@ -982,9 +991,17 @@ mod tests {
         }
         let mut out = Vec::new();
         let obs = [polygon(&[(3.0, 0.0), (6.0, 0.0), (6.0, 1.0), (3.0, 1.0)])];
-        paths_at(src, &obs, &mirrors(src, &obs), 1, Point::new(6.0, 2.5), &mut out);
+        paths_at(src, &obs, &mirrors(src, &obs, Point::new(6.0, 2.5)), 1, Point::new(6.0, 2.5), &mut out);
         assert_eq!(out.len(), 2);
         assert!(out[1].q.dist(Point::new(2.0, -0.5)) < 1e-12, "{:?}", out[1].q);
+        // A speaker on a wall, either side (the even–odd test puts the left
+        // edge in and the right one out): the other three walls reflect.
+        let obs = [polygon(&room)];
+        for (src, lis) in [(Point::new(0.0, 3.0), Point::new(3.0, 3.5)), (Point::new(8.0, 3.0), Point::new(5.0, 3.5))] {
+            let mut out = Vec::new();
+            paths_at(src, &obs, &mirrors(src, &obs, lis), 1, lis, &mut out);
+            assert_eq!(out.len(), 4, "speaker at {src:?}");
+        }
     }
 
     /// Second order against the exact module's corner echoes (images of
@@ -1007,13 +1024,12 @@ mod tests {
         ];
         let mut second = 0;
         for (obs, src, (x0, wx, y0, wy)) in cases {
-            let ms = mirrors(src, &obs);
             let scene = ExactScene::from_obstacles(&obs);
             for k in 0..60 {
                 let lis = Point::new(x0 + wx * f64::from(k % 10) / 9.0, y0 + wy * f64::from(k / 10) / 5.0);
                 for order in [1, 2] {
                     let mut out = Vec::new();
-                    paths_at(src, &obs, &ms, order, lis, &mut out);
+                    paths_at(src, &obs, &mirrors(src, &obs, lis), order, lis, &mut out);
                     let mut got: Vec<f64> = out[1..].iter().map(|p| p.base_m + p.q.dist(lis) - src.dist(lis)).collect();
                     got.sort_by(f64::total_cmp);
                     got.dedup_by(|b, a| (*b - *a).abs() <= 1e-6);

@@ -633,6 +633,13 @@ impl RecordingEchoes {
             kind: chirp.kind,
         };
         let cycle = pattern_cycle(&scene_chirp, opts.pattern);
+        let most = chirpmap_audio::doppler::MAX_ECHOES_PER_FRAME;
+        if !(1..=most).contains(&opts.echoes_per_frame) {
+            return Err(Error::Field {
+                field: "echoes per frame",
+                reason: format!("must be in 1..={most}, got {}", opts.echoes_per_frame),
+            });
+        }
         if opts.method != WavMethod::Doppler {
             if opts.echoes_per_frame != 1 {
                 return Err(Error::Field {
