@@ -345,13 +345,20 @@ struct Mirror {
 
 /// A source on an edge (a speaker on a wall) is neither inside nor outside
 /// by the even–odd test (which puts some edges in, others out): there the
-/// listener's side decides, `listener` being where it starts.
-fn mirrors(source: Point, obstacles: &[Obstacle], listener: Point) -> Vec<Mirror> {
+/// listener's side decides, at the first of its positions `listener_at(t)`
+/// (every 50 ms of its first 10 s) off the polygon's edges (a listener
+/// starting on the wall too got no echo at all: review, session 23).
+fn mirrors(source: Point, obstacles: &[Obstacle], listener_at: &dyn Fn(f64) -> Point) -> Vec<Mirror> {
     let mut out = Vec::new();
     for (oi, o) in obstacles.iter().enumerate() {
         let Shape::Polygon(poly) = &o.shape else { continue };
-        let on_edge = poly.edges().any(|(a, b)| point_segment_distance(source, a, b) <= 1e-9);
-        let room = if on_edge { poly.contains(listener) } else { poly.contains(source) };
+        let on_edge = |p: Point| poly.edges().any(|(a, b)| point_segment_distance(p, a, b) <= 1e-9);
+        let room = if on_edge(source) {
+            let t0 = (0..200).map(|k| listener_at(0.05 * f64::from(k))).find(|&p| !on_edge(p));
+            poly.contains(t0.unwrap_or_else(|| listener_at(0.0)))
+        } else {
+            poly.contains(source)
+        };
         let ccw = (poly.signed_area() > 0.0) != room;
         for (a, b) in poly.edges() {
             let e = b - a;
@@ -595,7 +602,7 @@ impl<'a> Renderer<'a> {
             mirrors: scene
                 .listeners
                 .iter()
-                .map(|l| mirrors(scene.source_position(), &obstacles, listener_position(l, 0.0)))
+                .map(|l| mirrors(scene.source_position(), &obstacles, &|t| listener_position(l, t)))
                 .collect(),
             obstacles,
             source: scene.source_position(),
@@ -977,7 +984,7 @@ mod tests {
         for winding in [room.to_vec(), room.iter().rev().copied().collect()] {
             let mut out = Vec::new();
             let obs = [polygon(&winding)];
-            paths_at(src, &obs, &mirrors(src, &obs, lis), 1, lis, &mut out);
+            paths_at(src, &obs, &mirrors(src, &obs, &|_| lis), 1, lis, &mut out);
             // The first path is the direct one.
             assert!(out[0].q == src && out[0].gain == 1.0);
             out.remove(0);
@@ -991,7 +998,7 @@ mod tests {
         }
         let mut out = Vec::new();
         let obs = [polygon(&[(3.0, 0.0), (6.0, 0.0), (6.0, 1.0), (3.0, 1.0)])];
-        paths_at(src, &obs, &mirrors(src, &obs, Point::new(6.0, 2.5)), 1, Point::new(6.0, 2.5), &mut out);
+        paths_at(src, &obs, &mirrors(src, &obs, &|_| Point::new(6.0, 2.5)), 1, Point::new(6.0, 2.5), &mut out);
         assert_eq!(out.len(), 2);
         assert!(out[1].q.dist(Point::new(2.0, -0.5)) < 1e-12, "{:?}", out[1].q);
         // A speaker on a wall, either side (the even–odd test puts the left
@@ -999,9 +1006,16 @@ mod tests {
         let obs = [polygon(&room)];
         for (src, lis) in [(Point::new(0.0, 3.0), Point::new(3.0, 3.5)), (Point::new(8.0, 3.0), Point::new(5.0, 3.5))] {
             let mut out = Vec::new();
-            paths_at(src, &obs, &mirrors(src, &obs, lis), 1, lis, &mut out);
+            paths_at(src, &obs, &mirrors(src, &obs, &|_| lis), 1, lis, &mut out);
             assert_eq!(out.len(), 4, "speaker at {src:?}");
         }
+        // The speaker and the listener's start both on the right wall: its
+        // first position off the wall decides.
+        let src = Point::new(8.0, 3.0);
+        let walk = |t: f64| Point::new(8.0 - t, 4.5);
+        let mut out = Vec::new();
+        paths_at(src, &obs, &mirrors(src, &obs, &walk), 1, walk(1.0), &mut out);
+        assert_eq!(out.len(), 4);
     }
 
     /// Second order against the exact module's corner echoes (images of
@@ -1029,7 +1043,7 @@ mod tests {
                 let lis = Point::new(x0 + wx * f64::from(k % 10) / 9.0, y0 + wy * f64::from(k / 10) / 5.0);
                 for order in [1, 2] {
                     let mut out = Vec::new();
-                    paths_at(src, &obs, &mirrors(src, &obs, lis), order, lis, &mut out);
+                    paths_at(src, &obs, &mirrors(src, &obs, &|_| lis), order, lis, &mut out);
                     let mut got: Vec<f64> = out[1..].iter().map(|p| p.base_m + p.q.dist(lis) - src.dist(lis)).collect();
                     got.sort_by(f64::total_cmp);
                     got.dedup_by(|b, a| (*b - *a).abs() <= 1e-6);

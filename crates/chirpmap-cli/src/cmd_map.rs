@@ -50,8 +50,9 @@ pub struct MapArgs {
     #[arg(long)]
     pub frame_ms: Option<f64>,
     /// Most echoes taken from each frame for --wav, earliest first, each tracked across its chirp with its
-    /// own Doppler correction (doppler method only; then the default frame is twice as long, to separate
-    /// them): 1 keeps the first reflection alone (the paper's §IV) [default: 8 for doppler, else 1].
+    /// own Doppler correction (doppler method only; with a linear sweep the default frame is then twice
+    /// as long, to separate them): 1 keeps the first reflection alone (the paper's §IV) [default: 8 for
+    /// doppler, else 1].
     #[arg(long)]
     pub echoes_per_frame: Option<usize>,
     #[command(flatten)]
