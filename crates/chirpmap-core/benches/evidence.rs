@@ -10,7 +10,8 @@
 //! echoes (160 poses, ~1760 echoes, 14 m × 12 m grid at 0.1 m), the loop
 //! past three circles (160 poses, 480 echoes, 55 m × 50 m grid at 0.1 m) and
 //! the L-shaped corridor of `chirpmap benchmark maps` (471 echoes), all from
-//! `chirpmap_core::exact`.
+//! `chirpmap_core::exact`; and a pillar circled by 12 566 poses 1 mm apart
+//! (echoes with 1 cm of noise), whose envelope is one dense pile.
 
 use chirpmap_core::exact::{ExactOptions, ExactScene, Pose, exact_echoes};
 use chirpmap_core::{
@@ -77,6 +78,32 @@ fn corridor() -> (Vec<Echo>, GridSpec) {
     (echoes, GridSpec::from_bounds([-3.0, -3.0, 17.0, 15.0], 0.1, u128::MAX).expect("grid"))
 }
 
+/// A 0.3 m pillar circled at 2 m by `n` poses (the walk of the evidence
+/// tests' `pillar_circled`), Δd with ±1 cm of noise (a sum of three
+/// uniforms), σ = 1 cm; 14 m × 12 m grid at 0.1 m.
+fn dense_pillar(n: usize) -> (Vec<Echo>, GridSpec) {
+    let pillar = obstacle(Shape::Circle(Circle::new(Point::new(5.5, 3.8), 0.3).expect("pillar")));
+    let poses: Vec<Pose> = (0..n)
+        .map(|k| {
+            let u = k as f64 * std::f64::consts::TAU / n as f64 - std::f64::consts::FRAC_PI_2;
+            Pose { t_s: 0.01 * k as f64, listener: Point::new(4.0 + 2.0 * u.cos(), 3.2 + 2.0 * u.sin()) }
+        })
+        .collect();
+    let scene = ExactScene::from_obstacles(std::slice::from_ref(&pillar));
+    let mut echoes = exact_echoes(Point::new(2.0, 2.5), &poses, &scene, &ExactOptions::default()).expect("echoes");
+    echoes.retain(|e| e.delta_d_m > 0.3);
+    let mut x = 7u64;
+    let mut uniform = || {
+        x = x.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        (x >> 11) as f64 / (1u64 << 53) as f64
+    };
+    for e in &mut echoes {
+        e.delta_d_m += 0.02 * (uniform() + uniform() + uniform() - 1.5);
+    }
+    let echoes = echoes.into_iter().map(|e| e.with_sigma_m(0.01).expect("sigma")).collect();
+    (echoes, GridSpec::from_bounds([-3.0, -3.0, 11.0, 9.0], 0.1, u128::MAX).expect("grid"))
+}
+
 fn paper(echoes: &[Echo], spec: GridSpec) -> usize {
     let mut m = AccumulationMapper::new(spec, MappingParams::default()).expect("mapper");
     for e in echoes {
@@ -122,5 +149,17 @@ fn corridor_paper(bencher: divan::Bencher) {
 #[divan::bench(sample_count = 10)]
 fn corridor_evidence(bencher: divan::Bencher) {
     let (echoes, spec) = corridor();
+    bencher.bench_local(|| evidence(&echoes, spec));
+}
+
+#[divan::bench(sample_count = 5)]
+fn dense_pillar_paper(bencher: divan::Bencher) {
+    let (echoes, spec) = dense_pillar(12_566);
+    bencher.bench_local(|| paper(&echoes, spec));
+}
+
+#[divan::bench(sample_count = 5)]
+fn dense_pillar_evidence(bencher: divan::Bencher) {
+    let (echoes, spec) = dense_pillar(12_566);
     bencher.bench_local(|| evidence(&echoes, spec));
 }

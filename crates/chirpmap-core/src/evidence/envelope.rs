@@ -8,11 +8,11 @@
 //! enough measurements, are a compact reflector, unless carved free space
 //! outweighs it ([`Ctx::free_against`]).
 
+use super::pile::Pile;
 use super::vote::on_wall;
 use super::{Ctx, Surface, SurfaceKind};
 use crate::ellipse::Ellipse;
 use crate::geometry::Point;
-use std::collections::HashMap;
 
 #[derive(Debug, Clone)]
 pub(crate) struct PointOut {
@@ -184,30 +184,14 @@ pub(crate) fn find_points(ctx: &Ctx, skip: &[bool], walls: &[super::vote::Wall],
     if env.is_empty() {
         return Vec::new();
     }
-    // Density: envelope points within the cluster radius (spatial hash).
-    let r = p.point_radius_m;
-    let key = |q: Point| ((q.x / r).floor() as i64, (q.y / r).floor() as i64);
-    let mut hash: HashMap<(i64, i64), Vec<usize>> = HashMap::new();
-    for (i, e) in env.iter().enumerate() {
-        hash.entry(key(e.p)).or_default().push(i);
-    }
-    let neighbours = |i: usize| -> Vec<usize> {
-        let (kx, ky) = key(env[i].p);
-        let mut v = Vec::new();
-        for dx in -1..=1 {
-            for dy in -1..=1 {
-                if let Some(list) = hash.get(&(kx + dx, ky + dy)) {
-                    v.extend(list.iter().copied().filter(|&j| env[j].p.dist(env[i].p) <= r));
-                }
-            }
-        }
-        v
-    };
-    // On rayon's threads (the same counts whatever their number): quadratic
-    // in a pile's size, the bulk of this step on densely sampled walks.
+    // Density: envelope points within the cluster radius ([`Pile`]), on
+    // rayon's threads (the same counts whatever their number).
+    let pts: Vec<Point> = env.iter().map(|e| e.p).collect();
+    let pile = Pile::new(&pts, p.point_radius_m);
+    let neighbours = |i: usize| pile.within(i);
     let density: Vec<usize> = {
         use rayon::prelude::*;
-        (0..env.len()).into_par_iter().map(|i| neighbours(i).len()).collect()
+        (0..env.len()).into_par_iter().map(|i| pile.count_within(i)).collect()
     };
     let mut order: Vec<usize> = (0..env.len()).collect();
     order.sort_by(|&a, &b| density[b].cmp(&density[a]).then(a.cmp(&b)));

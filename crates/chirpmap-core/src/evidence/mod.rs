@@ -24,6 +24,7 @@
 pub mod band;
 mod envelope;
 mod lines;
+mod pile;
 pub mod tangent;
 mod vote;
 
