@@ -668,21 +668,6 @@ fn unheard_at_peak(ghost_fraction: f64) -> f64 {
     0.5 * (1.0 - ghost_fraction)
 }
 
-/// A peak whose own line touches at least `min_support` echoes, all within
-/// this fraction of `min_line_length_m`, is one of a fan of lines about one
-/// tangency point: where the reflection point barely moves along the walk
-/// (a corridor's end wall ahead of the listener), every line through it
-/// within a few bins of the wall's angle is tangent to all its ellipses,
-/// and the vote has a ridge of peaks along that point's sinusoid.
-/// Refinement cannot spread tangency points that sit in one spot, so such
-/// a peak refines to a line shorter than `min_line_length_m`, which is
-/// dropped; a real wall's peak, within half an angle bin of it, touches its
-/// echoes over metres (2τ/δθ: 9 m for τ = 4 cm at half a degree). In the
-/// L-corridor of `benchmark maps`, 100 of the 201 refined peaks are such
-/// fans (each refined to 0.01–0.12 m), and none of its kept lines
-/// (BENCHMARKS.md, "Session 24").
-const FAN_FRACTION: f64 = 0.5;
-
 /// How many standard errors a sagitta must reach to count as a bend: 2 took
 /// Table I at 50 ms from score_obstacle 0.520 to 0.586 and changed no other
 /// case of `chirpmap benchmark maps`; 3 cost the loop past circles and the
@@ -1128,10 +1113,8 @@ fn hough_peaks(ctx: &Ctx, tan: &Tangents, g: &Geom) -> Vec<(f32, usize, usize)> 
 /// test rejects it afterwards anyway, and a tilt of the line (the peak's
 /// angle is off by up to half a bin) adds only a linear term to the
 /// residuals, not a sagitta. Nor is a peak whose own line is heard from too
-/// few of the poses that should hear it ([`unheard_at_peak`]), nor one
-/// whose own line is tangent to enough echoes but all within a stretch
-/// shorter than half the shortest line ([`FAN_FRACTION`]). Screened peaks
-/// still stand for their neighbours.
+/// few of the poses that should hear it ([`unheard_at_peak`]). Screened
+/// peaks still stand for their neighbours.
 fn screen_and_refine(ctx: &Ctx, tan: &Tangents, g: &Geom, peaks: &[(f32, usize, usize)]) -> (Vec<Cand>, Vec<Cand>) {
     use rayon::prelude::*;
     let p = ctx.params;
@@ -1166,9 +1149,7 @@ fn screen_and_refine(ctx: &Ctx, tan: &Tangents, g: &Geom, peaks: &[(f32, usize, 
                 let touches = touches_in_runs(ctx, &set, theta, rho, origin);
                 let (p0, p1) = segment_of(theta, rho, origin, &touches);
                 let quick = Cand { theta, rho, touches, p0, p1, rms_sigmas: f64::INFINITY };
-                let fan =
-                    quick.support() >= p.min_support as usize && quick.length() < FAN_FRACTION * p.min_line_length_m;
-                Some(if fan || curved(ctx, &quick, origin) || heard_ratio(ctx, &quick, origin) < unheard {
+                Some(if curved(ctx, &quick, origin) || heard_ratio(ctx, &quick, origin) < unheard {
                     Screened::NotRefined(quick)
                 } else {
                     Screened::Refined(refine(ctx, tan, theta, rho, origin, bin, rho_bin))
@@ -1352,27 +1333,12 @@ mod tests {
         peaks: &[(f32, usize, usize)],
         screen: bool,
     ) -> (Vec<(f64, Cand)>, Vec<Cand>, usize) {
-        let (refined, screened, near_n) = sequential_with(ctx, g, tan, peaks, screen, screen);
-        (refined.into_iter().map(|(h, _, c)| (h, c)).collect(), screened, near_n)
-    }
-
-    /// [`sequential`] with the unheard-at-peak and the fan screens each on
-    /// or off.
-    fn sequential_with(
-        ctx: &Ctx,
-        g: &Geom,
-        tan: &Tangents,
-        peaks: &[(f32, usize, usize)],
-        screen: bool,
-        fan_screen: bool,
-    ) -> (Vec<(f64, bool, Cand)>, Vec<Cand>, usize) {
         let (p, origin) = (ctx.params, g.origin);
-        let (mut refined, mut screened, mut near_n, mut buf) =
-            (Vec::<(f64, bool, Cand)>::new(), Vec::new(), 0, Vec::new());
+        let (mut refined, mut screened, mut near_n, mut buf) = (Vec::<(f64, Cand)>::new(), Vec::new(), 0, Vec::new());
         for &(_, t, b) in peaks {
             let (theta, rho) = g.line_of(t, b);
             let n = Point::from_angle(theta);
-            let near = refined.iter().map(|r| &r.2).chain(&screened).any(|c: &Cand| {
+            let near = refined.iter().map(|r| &r.1).chain(&screened).any(|c: &Cand| {
                 let mid = (c.p0 + c.p1) * 0.5;
                 angle_diff(theta, c.theta) <= 2.0 * g.bin
                     && (n.dot(mid - origin) - rho).abs() <= 2.0 * g.rho_bin + p.band_sigmas * p.default_sigma_m
@@ -1386,16 +1352,12 @@ mod tests {
             let (p0, p1) = segment_of(theta, rho, origin, &touches);
             let quick = Cand { theta, rho, touches, p0, p1, rms_sigmas: f64::INFINITY };
             let heard = heard_ratio(ctx, &quick, origin);
-            let fan = quick.support() >= p.min_support as usize && quick.length() < FAN_FRACTION * p.min_line_length_m;
-            if (fan_screen && fan)
-                || curved(ctx, &quick, origin)
-                || (screen && heard < unheard_at_peak(p.ghost_fraction))
-            {
+            if curved(ctx, &quick, origin) || (screen && heard < unheard_at_peak(p.ghost_fraction)) {
                 screened.push(quick);
                 continue;
             }
             if let Some(c) = refine(ctx, tan, theta, rho, origin, g.bin, g.rho_bin) {
-                refined.push((heard, fan, c));
+                refined.push((heard, c));
             }
         }
         (refined, screened, near_n)
@@ -1416,63 +1378,6 @@ mod tests {
             }
             assert!(!refined.is_empty() && !screened.is_empty());
         });
-    }
-
-    /// The L-shaped corridor of `chirpmap benchmark maps` (the `evidence`
-    /// bench's): 2 m wide, source at (1, 1), poses every 0.1 m along
-    /// (2, 1.2) → (12.9, 1.2) → (12.9, 11), first-order echoes.
-    fn corridor_echoes() -> (Vec<Echo>, GridSpec) {
-        let v = [(0.0, 0.0), (14.0, 0.0), (14.0, 12.0), (12.0, 12.0), (12.0, 2.0), (0.0, 2.0)];
-        let outer = Polygon::new(v.iter().map(|&(x, y)| Point::new(x, y)).collect()).expect("corridor");
-        let legs = [(Point::new(2.0, 1.2), Point::new(12.9, 1.2)), (Point::new(12.9, 1.2), Point::new(12.9, 11.0))];
-        let mut at = Vec::new();
-        for (a, b) in legs {
-            let n = (a.dist(b) / 0.1).round() as usize;
-            at.extend((0..n).map(|i| a + (b - a) * (i as f64 / n as f64)));
-        }
-        let poses: Vec<Pose> =
-            at.into_iter().enumerate().map(|(i, listener)| Pose { t_s: i as f64, listener }).collect();
-        let ob = Obstacle { shape: Shape::Polygon(outer), roughness: 0.0, absorption: 0.0 };
-        let scene = ExactScene::from_obstacles(&[ob]);
-        let echoes = exact_echoes(Point::new(1.0, 1.0), &poses, &scene, &ExactOptions::default()).expect("echoes");
-        (echoes, GridSpec::from_bounds([-3.0, -3.0, 17.0, 15.0], 0.1, u128::MAX).expect("grid"))
-    }
-
-    /// The fan screen's premise, on the corridor: every peak it spares
-    /// (a line touching enough echoes, all within half the shortest line's
-    /// length) refines, without the screen, to a line too short to keep;
-    /// the lines kept are the same bits with and without it, and so is the
-    /// batched loop's output.
-    #[test]
-    fn fan_peaks_refine_to_lines_too_short_to_keep() {
-        let (echoes, spec) = corridor_echoes();
-        let params = EvidenceParams::default();
-        let mut ctx = prepare(&echoes, spec, &params).expect("ctx");
-        carve_free(&mut ctx).expect("carve");
-        let g = Geom::new(&ctx);
-        let tan = Tangents::new(&ctx, g.origin);
-        let peaks = hough_peaks(&ctx, &tan, &g);
-        let p = ctx.params;
-        let kept = |r: &[(f64, bool, Cand)]| -> Vec<Cand> {
-            r.iter()
-                .map(|x| x.2.clone())
-                .filter(|c| c.support() >= p.min_support as usize && c.length() >= p.min_line_length_m)
-                .filter(|c| !curved(&ctx, c, g.origin) && heard_ratio(&ctx, c, g.origin) >= 1.0 - p.ghost_fraction)
-                .collect()
-        };
-        let (without, _, _) = sequential_with(&ctx, &g, &tan, &peaks, true, false);
-        let (with, screened, _) = sequential_with(&ctx, &g, &tan, &peaks, true, true);
-        let fans: Vec<&Cand> = without.iter().filter(|r| r.1).map(|r| &r.2).collect();
-        assert!(fans.len() >= 50, "{} fan peaks refined without the screen", fans.len());
-        for c in &fans {
-            assert!(c.length() < p.min_line_length_m, "a fan peak refined to a {:.2} m line", c.length());
-        }
-        assert!(with.len() + fans.len() <= without.len(), "{} + {} vs {}", with.len(), fans.len(), without.len());
-        assert!(same(&kept(&with), &kept(&without)));
-        assert!(kept(&with).len() >= 4, "{} lines", kept(&with).len());
-        let (r, sc) = screen_and_refine(&ctx, &tan, &g, &peaks);
-        let with: Vec<Cand> = with.into_iter().map(|x| x.2).collect();
-        assert!(same(&r, &with) && same(&sc, &screened));
     }
 
     /// The ghost verdicts against the loop `ghost_lines` replaced: every

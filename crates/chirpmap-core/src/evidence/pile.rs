@@ -13,9 +13,11 @@
 //! one wholly beyond r is skipped, and only the points of the fine cells the
 //! circle of radius r crosses are tested one by one. The counts are those of
 //! the one-by-one test (`q.dist(p) <= r`) exactly: a box is taken whole or
-//! skipped only when its corner distances clear r by a relative 10⁻⁹, far
-//! beyond the few ulps by which a computed distance can differ from the true
-//! one. (No crate was used: the k-d trees on crates.io count within a radius
+//! skipped only when the squared distances to its farthest and nearest
+//! points clear r² by a relative 2·10⁻⁹, far beyond the few ulps by which a
+//! squared distance and `hypot` can disagree (with r² outside the normal
+//! range, where that margin is lost in rounding, every point is tested by
+//! `hypot`). (No crate was used: the k-d trees on crates.io count within a radius
 //! by visiting each point inside, which is the quadratic cost itself.)
 
 use crate::geometry::Point;
@@ -63,7 +65,11 @@ impl<'a> Pile<'a> {
             cells.entry(key(q, r)).or_default().idx.push(i);
         }
         let fine_side = r / FINE_PER_SIDE;
-        for cell in cells.values_mut().filter(|c| c.idx.len() > HEAVY) {
+        // With r² outside the normal range (r below ~1e-154 m or above
+        // ~1e154 m) the clearance is lost in rounding: every cell is then
+        // tested point by point, by `hypot`.
+        let heavy = if (r * r).is_normal() { HEAVY } else { usize::MAX };
+        for cell in cells.values_mut().filter(|c| c.idx.len() > heavy) {
             (cell.lo, cell.hi) = (pts[cell.idx[0]], pts[cell.idx[0]]);
             let mut by_key: HashMap<(i64, i64), usize> = HashMap::new();
             for &i in &cell.idx {
@@ -109,6 +115,9 @@ impl<'a> Pile<'a> {
         let (dx, dy) = (q.x - p.x, q.y - p.y);
         let d2 = dx * dx + dy * dy;
         let r2 = self.r * self.r;
+        if !r2.is_normal() {
+            return q.dist(p) <= self.r;
+        }
         if d2 < r2 * (1.0 - CLEARANCE) {
             true
         } else if d2 > r2 * (1.0 + CLEARANCE) {
@@ -216,7 +225,11 @@ mod tests {
         ) {
             let mut pts = cloud(seed, n, Point::new(cx, cy), spread, rim);
             pts.extend_from_within(..n.min(20));
-            let on_rim: Vec<Point> = pts[..n.min(20)].iter().map(|&q| q + Point::new(r, 0.0)).collect();
+            // Exactly r away along an axis, and r away in any direction
+            // (where the squared distance and `hypot` can disagree about
+            // which side of r they lie: the clearance must decide those).
+            let mut on_rim: Vec<Point> = pts[..n.min(20)].iter().map(|&q| q + Point::new(r, 0.0)).collect();
+            on_rim.extend(pts[..n.min(200)].iter().enumerate().map(|(k, &q)| q + Point::from_angle(0.7 * k as f64) * r));
             pts.extend(on_rim);
             let pile = Pile::new(&pts, r);
             for i in 0..pts.len() {
@@ -225,6 +238,19 @@ mod tests {
                 let mut got = pile.within(i);
                 got.sort_unstable();
                 prop_assert_eq!(got, want);
+            }
+        }
+    }
+
+    /// Radii whose square is subnormal or overflows: the boxes' clearance is
+    /// lost in rounding there, so every point is tested by `hypot`.
+    #[test]
+    fn extreme_radii_are_still_every_pair_tested() {
+        for r in [1e-160, 1e-200, 1e-300, 1e160] {
+            let pts = cloud(3, 3000, Point::new(0.0, 0.0), 3.0 * r, 0.0);
+            let pile = Pile::new(&pts, r);
+            for i in (0..pts.len()).step_by(7) {
+                assert_eq!(pile.count_within(i), naive(&pts, i, r).len(), "r {r}, point {i}");
             }
         }
     }
