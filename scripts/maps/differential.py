@@ -1,0 +1,233 @@
+#!/usr/bin/env python3
+"""Two chirpmap binaries' evidence maps, compared on generated scenes.
+
+A speed change to the evidence mapper that claims "the same output" is checked
+by `chirpmap benchmark maps` on its fixed suite; this script checks it on
+scenes the suite does not have. It generates exact first-order echoes (image
+sources off wall segments, with occlusion by the other segments; specular
+points on circles by a scan and a ternary search), optionally with Gaussian
+noise, writes each as an echoes CSV, runs `map --echoes E.csv --mapper
+evidence` with both binaries and compares surfaces.csv, highlights.csv and
+map.npy byte for byte. Cases whose outputs differ are kept in the work
+directory (spec.json, e.csv, both outputs); the others are removed.
+
+Scene kinds:
+  room     a rectangular room (2-10 m by 2-8 m), 2-3 legs of 3-100 poses,
+           0-2 short walls inside
+  headon   a 0.3-3 m wall walked toward along its normal, 0-3 short walls
+  clutter  2-8 walls of 0.3-2 m, 1-3 legs of 5-100 poses
+  dense    a room with 1-2 pillars, a loop of 400-2500 poses round one
+
+The generator is independent of chirpmap's own code (pure Python). A review of
+session 24 found, with this script's first version, 25 of 3 153 scenes whose
+maps a screen of Hough peaks changed (BENCHMARKS.md, session 24).
+
+Usage:
+  scripts/maps/differential.py A_BIN B_BIN [--n 100] [--start 0]
+      [--kinds room,headon,clutter,dense] [--param min_line_length_m=1.0]
+      [--work /tmp/differential]
+"""
+import argparse
+import hashlib
+import json
+import math
+import os
+import random
+import shutil
+import subprocess
+import sys
+from concurrent.futures import ThreadPoolExecutor
+
+FILES = ["surfaces.csv", "highlights.csv", "map.npy"]
+
+
+def crosses(a, b, c, d):
+    """Whether segments ab and cd cross properly (strictly, 1e-12 slack)."""
+    def cr(o, p, q):
+        return (p[0] - o[0]) * (q[1] - o[1]) - (p[1] - o[1]) * (q[0] - o[0])
+    d1, d2, d3, d4 = cr(c, d, a), cr(c, d, b), cr(a, b, c), cr(a, b, d)
+    return ((d1 > 1e-12 and d2 < -1e-12) or (d1 < -1e-12 and d2 > 1e-12)) and (
+        (d3 > 1e-12 and d4 < -1e-12) or (d3 < -1e-12 and d4 > 1e-12))
+
+
+def echoes(src, walls, circles, lis):
+    """Δd of every first-order reflection heard at `lis`."""
+    out = []
+    direct = math.dist(src, lis)
+    for wi, (x0, y0, x1, y1) in enumerate(walls):
+        dx, dy = x1 - x0, y1 - y0
+        ln = math.hypot(dx, dy)
+        nx, ny = -dy / ln, dx / ln
+        ds = (src[0] - x0) * nx + (src[1] - y0) * ny
+        dl = (lis[0] - x0) * nx + (lis[1] - y0) * ny
+        if ds * dl <= 0:
+            continue
+        img = (src[0] - 2 * ds * nx, src[1] - 2 * ds * ny)
+        di = (img[0] - x0) * nx + (img[1] - y0) * ny
+        t = di / (di - dl)
+        r = (img[0] + t * (lis[0] - img[0]), img[1] + t * (lis[1] - img[1]))
+        u = ((r[0] - x0) * dx + (r[1] - y0) * dy) / ln ** 2
+        if u < 0 or u > 1:
+            continue
+        if any(crosses(src, r, w[:2], w[2:]) or crosses(r, lis, w[:2], w[2:])
+               for wj, w in enumerate(walls) if wj != wi):
+            continue
+        out.append(math.dist(img, lis) - direct)
+    for (cx, cy, rad) in circles:
+        def path(a):
+            q = (cx + rad * math.cos(a), cy + rad * math.sin(a))
+            return math.dist(src, q) + math.dist(q, lis)
+        best = min(range(720), key=lambda k: path(2 * math.pi * k / 720))
+        lo, hi = 2 * math.pi * (best - 1) / 720, 2 * math.pi * (best + 1) / 720
+        for _ in range(100):
+            m1, m2 = lo + (hi - lo) / 3, hi - (hi - lo) / 3
+            if path(m1) < path(m2):
+                hi = m2
+            else:
+                lo = m1
+        a = 0.5 * (lo + hi)
+        q = (cx + rad * math.cos(a), cy + rad * math.sin(a))
+        if any(crosses(src, q, w[:2], w[2:]) or crosses(q, lis, w[:2], w[2:]) for w in walls):
+            continue
+        out.append(path(a) - direct)
+    return out
+
+
+def short_wall(rng, xlo, xhi, ylo, yhi, lmin, lmax):
+    length, ang = rng.uniform(lmin, lmax), rng.uniform(0, 2 * math.pi)
+    x, y = rng.uniform(xlo, xhi), rng.uniform(ylo, yhi)
+    return [x, y, x + length * math.cos(ang), y + length * math.sin(ang)]
+
+
+def scene(rng, kind):
+    """A scene spec: source, walls, circles, poses, noise, seed."""
+    walls, circles, poses = [], [], []
+
+    def leg(p, q, n):
+        poses.extend([p[0] + (q[0] - p[0]) * i / n, p[1] + (q[1] - p[1]) * i / n] for i in range(n))
+
+    if kind == "headon":
+        length, a = rng.uniform(0.3, 3.0), rng.uniform(0, 2 * math.pi)
+        c = (rng.uniform(-2, 2), rng.uniform(-2, 2))
+        d, n = (math.cos(a), math.sin(a)), (-math.sin(a), math.cos(a))
+        walls.append([c[0] - d[0] * length / 2, c[1] - d[1] * length / 2,
+                      c[0] + d[0] * length / 2, c[1] + d[1] * length / 2])
+        off = rng.uniform(-0.3 * length, 0.3 * length)
+        away = rng.uniform(0.5, 5)
+        src = [c[0] + n[0] * away + d[0] * (off + rng.uniform(-0.3, 0.3)),
+               c[1] + n[1] * away + d[1] * (off + rng.uniform(-0.3, 0.3))]
+        far, near, lat = rng.uniform(2, 8), rng.uniform(0.2, 1.0), off + rng.uniform(-0.2, 0.2)
+        p0 = [c[0] + n[0] * far + d[0] * lat, c[1] + n[1] * far + d[1] * lat]
+        lat1 = lat + rng.uniform(-0.3, 0.3)
+        p1 = [c[0] + n[0] * near + d[0] * lat1, c[1] + n[1] * near + d[1] * lat1]
+        leg(p0, p1, rng.choice([6, 10, 20, 40, 80, 150]))
+        walls += [short_wall(rng, -5, 5, -5, 5, 0.3, 2.0) for _ in range(rng.choice([0, 0, 1, 2, 3]))]
+    elif kind == "room":
+        w, h = rng.uniform(2, 10), rng.uniform(2, 8)
+        walls += [[0, 0, w, 0], [w, 0, w, h], [w, h, 0, h], [0, h, 0, 0]]
+        src = [rng.uniform(0.2, w - 0.2), rng.uniform(0.2, h - 0.2)]
+        pts = [[rng.uniform(0.2, w - 0.2), rng.uniform(0.2, h - 0.2)] for _ in range(rng.choice([2, 2, 3]))]
+        for p, q in zip(pts, pts[1:]):
+            leg(p, q, rng.choice([3, 5, 8, 12, 20, 40, 100]))
+        walls += [short_wall(rng, 0.5, w - 0.5, 0.5, h - 0.5, 0.3, 1.5) for _ in range(rng.choice([0, 1, 2]))]
+    elif kind == "dense":
+        w, h = rng.uniform(4, 9), rng.uniform(3, 7)
+        walls += [[0, 0, w, 0], [w, 0, w, h], [w, h, 0, h], [0, h, 0, 0]]
+        src = [rng.uniform(0.5, w - 0.5), rng.uniform(0.5, h - 0.5)]
+        circles = [[rng.uniform(1, w - 1), rng.uniform(1, h - 1), rng.uniform(0.05, 0.4)]
+                   for _ in range(rng.choice([1, 1, 2]))]
+        cx, cy, rad = circles[0]
+        rad += rng.uniform(0.05, 0.6)
+        n = rng.choice([400, 1000, 2500])
+        loop = ([cx + rad * math.cos(2 * math.pi * k / n), cy + rad * math.sin(2 * math.pi * k / n)] for k in range(n))
+        poses += [p for p in loop if 0.1 < p[0] < w - 0.1 and 0.1 < p[1] < h - 0.1]
+    else:
+        src = [0.0, 0.0]
+        walls += [short_wall(rng, -6, 6, -6, 6, 0.3, 2.0) for _ in range(rng.randint(2, 8))]
+        p = [rng.uniform(-4, 4), rng.uniform(-4, 4)]
+        for _ in range(rng.randint(1, 3)):
+            q = [rng.uniform(-4, 4), rng.uniform(-4, 4)]
+            leg(p, q, rng.choice([5, 10, 20, 50, 100]))
+            p = q
+    noise = rng.choice([0.0, 0.002, 0.01]) if kind == "dense" else rng.choice([0.0, 0.0, 0.005, 0.02])
+    return {"source": src, "walls": walls, "circles": circles, "poses": poses,
+            "noise": noise, "seed": rng.randrange(10 ** 6)}
+
+
+def write_echoes(spec, path):
+    rng = random.Random(spec["seed"])
+    rows = 0
+    with open(path, "w") as f:
+        f.write("source_x,source_y,listener_x,listener_y,delta_d,weight,t,listener\n")
+        for i, lis in enumerate(spec["poses"]):
+            for dd in echoes(spec["source"], spec["walls"], spec["circles"], lis):
+                dd += rng.gauss(0, spec["noise"]) if spec["noise"] else 0.0
+                if dd > 0:
+                    s = spec["source"]
+                    f.write(f"{s[0]!r},{s[1]!r},{lis[0]!r},{lis[1]!r},{dd!r},1,{i * 0.1!r},0\n")
+                    rows += 1
+    return rows
+
+
+def run(case, args):
+    i, kind = case
+    rng = random.Random(f"{kind}-{i}")  # a str seed is hashed the same in every process
+    d = os.path.join(args.work, f"{kind}-{i}")
+    os.makedirs(d, exist_ok=True)
+    spec = scene(rng, kind)
+    json.dump(spec, open(os.path.join(d, "spec.json"), "w"))
+    if write_echoes(spec, os.path.join(d, "e.csv")) < 2:
+        shutil.rmtree(d)
+        return None
+    extra = []
+    if args.param:
+        toml = f"[source]\nposition = [{spec['source'][0]!r}, {spec['source'][1]!r}]\n"
+        toml += "[mapping]\nmapper = \"evidence\"\ncell = 0.1\n[mapping.evidence]\n" + "".join(f"{p}\n" for p in args.param)
+        open(os.path.join(d, "scene.toml"), "w").write(toml)
+        extra = ["--scene", os.path.join(d, "scene.toml")]
+    got = {}
+    for name, binary in (("a", args.a), ("b", args.b)):
+        out = os.path.join(d, name)
+        r = subprocess.run([binary, "--no-progress", "map", "--echoes", os.path.join(d, "e.csv"),
+                            "--mapper", "evidence", "--out", out] + extra, capture_output=True, text=True)
+        if r.returncode != 0:
+            got[name] = ("error", r.stderr.strip()[-300:])
+        else:
+            got[name] = tuple(hashlib.md5(open(os.path.join(out, f), "rb").read()).hexdigest() for f in FILES)
+    same = got["a"] == got["b"]
+    if same:
+        shutil.rmtree(d)
+    return d, same, got
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("a", help="first chirpmap binary (e.g. the build before a change)")
+    ap.add_argument("b", help="second chirpmap binary")
+    ap.add_argument("--n", type=int, default=100, help="scenes per kind")
+    ap.add_argument("--start", type=int, default=0, help="first scene number")
+    ap.add_argument("--kinds", default="room,headon,clutter,dense")
+    ap.add_argument("--param", action="append", default=[],
+                    help="a [mapping.evidence] line for both runs, e.g. min_line_length_m=1.0 (repeatable)")
+    ap.add_argument("--work", default="/tmp/differential", help="where differing cases are kept")
+    ap.add_argument("--jobs", type=int, default=2)
+    args = ap.parse_args()
+    args.param = [p.replace("=", " = ", 1) for p in args.param]
+    if os.path.exists(args.work) and os.listdir(args.work):
+        sys.exit(f"differential.py: {args.work} is not empty; give another --work")
+    cases = [(i, k) for k in args.kinds.split(",") for i in range(args.start, args.start + args.n)]
+    total = differ = 0
+    with ThreadPoolExecutor(args.jobs) as ex:
+        for res in ex.map(lambda c: run(c, args), cases):
+            if res is None:
+                continue
+            total += 1
+            if not res[1]:
+                differ += 1
+                print("differs:", res[0], res[2], flush=True)
+    print(f"{total} scenes, {differ} differ")
+    sys.exit(1 if differ else 0)
+
+
+if __name__ == "__main__":
+    main()
