@@ -109,8 +109,6 @@ pub(crate) fn find_points(ctx: &Ctx, skip: &[bool], walls: &[super::vote::Wall],
     let p = ctx.params;
     let (trusted, reach) = super::vote::trusted_reach(walls);
     let extents: Vec<(super::vote::Wall, (Point, Point))> = walls.iter().map(|w| (*w, w.extent)).collect();
-    let mut env: Vec<EnvPoint> = Vec::new();
-    let mut buf = Vec::new();
     let moved = |a: &super::Meas, b: &super::Meas| a.listener.dist(b.listener) + a.source.dist(b.source);
     // Path travelled (listener and source) up to each measurement, from its
     // listener's first, and where each listener's measurements end.
@@ -128,7 +126,11 @@ pub(crate) fn find_points(ctx: &Ctx, skip: &[bool], walls: &[super::vote::Wall],
             run_end[i] = i + 1;
         }
     }
-    for (mi, m) in ctx.meas.iter().enumerate() {
+    // Each measurement's crossings with its partner's, on rayon's threads,
+    // joined in measurement order: the same points in the same order
+    // whatever the thread count.
+    let pair = |buf: &mut Vec<Point>, mi: usize, m: &super::Meas| -> Vec<EnvPoint> {
+        let mut env = Vec::new();
         // The next pose of the same listener at least the baseline away:
         // within a few poses, else the first few from where the path
         // travelled reaches the baseline (a straight line is no longer than
@@ -154,7 +156,7 @@ pub(crate) fn find_points(ctx: &Ctx, skip: &[bool], walls: &[super::vote::Wall],
                 .find(far_enough)
         });
         let Some(next) = next else {
-            continue;
+            return env;
         };
         let moved = 2.0 * (next.listener.dist(m.listener) + next.source.dist(m.source));
         for &ka in &m.echoes {
@@ -172,15 +174,22 @@ pub(crate) fn find_points(ctx: &Ctx, skip: &[bool], walls: &[super::vote::Wall],
                     continue;
                 }
                 buf.clear();
-                crossings(&ea.ellipse, &eb.ellipse, &mut buf);
-                for &q in &buf {
+                crossings(&ea.ellipse, &eb.ellipse, buf);
+                for &q in buf.iter() {
                     if ctx.spec.cell_of(q).is_some() {
                         env.push(EnvPoint { p: q, a: ka, b: kb });
                     }
                 }
             }
         }
-    }
+        env
+    };
+    let env: Vec<EnvPoint> = {
+        use rayon::prelude::*;
+        let parts: Vec<Vec<EnvPoint>> =
+            ctx.meas.par_iter().enumerate().map_init(Vec::new, |buf, (mi, m)| pair(buf, mi, m)).collect();
+        parts.concat()
+    };
     if env.is_empty() {
         return Vec::new();
     }
