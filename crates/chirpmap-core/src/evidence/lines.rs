@@ -1066,9 +1066,13 @@ fn hough_peaks(ctx: &Ctx, tan: &Tangents, g: &Geom) -> Vec<(f32, usize, usize)> 
     );
     // Peaks: votes ≥ min_support and maximal among the 8 neighbours
     // (θ wraps); equal neighbours earlier in scan order win.
-    let mut peaks: Vec<(f32, usize, usize)> = Vec::new();
+    // Row by row on rayon's threads: a cell's verdict reads only the
+    // finished vote, and the sort below is a total order, so the list is
+    // the same whatever the thread count.
     let min_votes = p.min_support as f32;
-    for t in 0..k_bins {
+    let acc = &acc[..];
+    let row_peaks = |t: usize| -> Vec<(f32, usize, usize)> {
+        let mut peaks = Vec::new();
         // Most cells are far below the threshold: a block none of whose
         // cells reaches it (a branch-free maximum) is skipped at once.
         let blocks = acc[t * n_rho..(t + 1) * n_rho].chunks(PEAK_BLOCK).enumerate();
@@ -1098,7 +1102,9 @@ fn hough_peaks(ctx: &Ctx, tan: &Tangents, g: &Geom) -> Vec<(f32, usize, usize)> 
                 }
             }
         }
-    }
+        peaks
+    };
+    let mut peaks: Vec<(f32, usize, usize)> = (0..k_bins).into_par_iter().flat_map_iter(row_peaks).collect();
     peaks.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)).then(a.2.cmp(&b.2)));
     peaks.truncate(4 * p.max_surfaces as usize);
     peaks
