@@ -8,15 +8,19 @@ sources off wall segments, with occlusion by the other segments; specular
 points on circles by a scan and a ternary search), optionally with Gaussian
 noise, writes each as an echoes CSV, runs `map --echoes E.csv --mapper
 evidence` with both binaries and compares surfaces.csv, highlights.csv and
-map.npy byte for byte. Cases whose outputs differ are kept in the work
-directory (spec.json, e.csv, both outputs); the others are removed.
+map.npy byte for byte. Cases whose outputs differ, or where either binary
+failed, are kept in the work directory (spec.json, e.csv, both outputs); the
+others are removed. Exit status: 0 when every scene maps the same with both,
+1 when some differ, 2 when a binary failed (a bad --param, a broken build),
+no scene was generated, or the arguments were bad.
 
 Scene kinds:
-  room     a rectangular room (2-10 m by 2-8 m), 2-3 legs of 3-100 poses,
+  room     a rectangular room (2-10 m by 2-8 m), 1-2 legs of 3-100 poses,
            0-2 short walls inside
   headon   a 0.3-3 m wall walked toward along its normal, 0-3 short walls
   clutter  2-8 walls of 0.3-2 m, 1-3 legs of 5-100 poses
   dense    a room with 1-2 pillars, a loop of 400-2500 poses round one
+           (those inside the room)
 
 The generator is independent of chirpmap's own code (pure Python). A review of
 session 24 found, with this script's first version, 25 of 3 153 scenes whose
@@ -39,6 +43,7 @@ import sys
 from concurrent.futures import ThreadPoolExecutor
 
 FILES = ["surfaces.csv", "highlights.csv", "map.npy"]
+KINDS = ("room", "headon", "clutter", "dense")
 
 
 def crosses(a, b, c, d):
@@ -173,7 +178,7 @@ def run(case, args):
     i, kind = case
     rng = random.Random(f"{kind}-{i}")  # a str seed is hashed the same in every process
     d = os.path.join(args.work, f"{kind}-{i}")
-    os.makedirs(d, exist_ok=True)
+    os.makedirs(d)  # a new folder: only what this script created is removed
     spec = scene(rng, kind)
     json.dump(spec, open(os.path.join(d, "spec.json"), "w"))
     if write_echoes(spec, os.path.join(d, "e.csv")) < 2:
@@ -194,10 +199,11 @@ def run(case, args):
             got[name] = ("error", r.stderr.strip()[-300:])
         else:
             got[name] = tuple(hashlib.md5(open(os.path.join(out, f), "rb").read()).hexdigest() for f in FILES)
-    same = got["a"] == got["b"]
+    failed = any(v[0] == "error" for v in got.values())
+    same = not failed and got["a"] == got["b"]
     if same:
         shutil.rmtree(d)
-    return d, same, got
+    return d, same, failed, got
 
 
 def main():
@@ -213,19 +219,32 @@ def main():
     ap.add_argument("--jobs", type=int, default=2)
     args = ap.parse_args()
     args.param = [p.replace("=", " = ", 1) for p in args.param]
+    kinds = args.kinds.split(",")
+    unknown = [k for k in kinds if k not in KINDS]
+    if unknown:
+        print(f"differential.py: unknown --kinds {','.join(unknown)} (known: {','.join(KINDS)})", file=sys.stderr)
+        sys.exit(2)
     if os.path.exists(args.work) and os.listdir(args.work):
-        sys.exit(f"differential.py: {args.work} is not empty; give another --work")
-    cases = [(i, k) for k in args.kinds.split(",") for i in range(args.start, args.start + args.n)]
-    total = differ = 0
+        print(f"differential.py: {args.work} is not empty; give another --work", file=sys.stderr)
+        sys.exit(2)
+    os.makedirs(args.work, exist_ok=True)
+    cases = [(i, k) for k in kinds for i in range(args.start, args.start + args.n)]
+    total = differ = failed = 0
     with ThreadPoolExecutor(args.jobs) as ex:
         for res in ex.map(lambda c: run(c, args), cases):
             if res is None:
                 continue
             total += 1
-            if not res[1]:
+            d, same, broke, got = res
+            if broke:
+                failed += 1
+                print("failed:", d, got, flush=True)
+            elif not same:
                 differ += 1
-                print("differs:", res[0], res[2], flush=True)
-    print(f"{total} scenes, {differ} differ")
+                print("differs:", d, got, flush=True)
+    print(f"{total} scenes, {differ} differ, {failed} failed")
+    if failed or total == 0:
+        sys.exit(2)
     sys.exit(1 if differ else 0)
 
 

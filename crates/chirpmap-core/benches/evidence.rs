@@ -79,8 +79,8 @@ fn corridor() -> (Vec<Echo>, GridSpec) {
 }
 
 /// A 0.3 m pillar circled at 2 m by `n` poses (the walk of the evidence
-/// tests' `pillar_circled`), Δd with ±1 cm of noise (a sum of three
-/// uniforms), σ = 1 cm; 14 m × 12 m grid at 0.1 m.
+/// tests' `pillar_circled`), Δd with noise of σ = 1 cm (a sum of three
+/// uniforms, at most ±3 cm), `sigma_m` = 1 cm; 14 m × 12 m grid at 0.1 m.
 fn dense_pillar(n: usize) -> (Vec<Echo>, GridSpec) {
     let pillar = obstacle(Shape::Circle(Circle::new(Point::new(5.5, 3.8), 0.3).expect("pillar")));
     let poses: Vec<Pose> = (0..n)

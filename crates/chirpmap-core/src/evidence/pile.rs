@@ -12,7 +12,10 @@
 //! fine cell whose box lies wholly within r of the query is counted whole,
 //! one wholly beyond r is skipped, and only the points of the fine cells the
 //! circle of radius r crosses are tested one by one. The counts are those of
-//! the one-by-one test (`q.dist(p) <= r`) exactly: a box is taken whole or
+//! the one-by-one test (`q.dist(p) <= r`) over the nine cells exactly (the
+//! spatial hash's before this, whose cells and order [`Pile::within`] keeps;
+//! like it, a point within about 10⁻¹⁷·r of the line x = 0 or y = 0 can
+//! miss a neighbour exactly r away, two cells over): a box is taken whole or
 //! skipped only when the squared distances to its farthest and nearest
 //! points clear r² by a relative 2·10⁻⁹, far beyond the few ulps by which a
 //! squared distance and `hypot` can disagree (with r² outside the normal
