@@ -26,10 +26,13 @@ The generator is independent of chirpmap's own code (pure Python). A review of
 session 24 found, with this script's first version, 25 of 3 153 scenes whose
 maps a screen of Hough peaks changed (BENCHMARKS.md, session 24).
 
+With --threads A,B the two runs get RAYON_NUM_THREADS=A and =B: one binary
+given twice then checks that the maps do not depend on the thread count.
+
 Usage:
   scripts/maps/differential.py A_BIN B_BIN [--n 100] [--start 0]
       [--kinds room,headon,clutter,dense] [--param min_line_length_m=1.0]
-      [--work /tmp/differential]
+      [--threads 1,2] [--work /tmp/differential]
 """
 import argparse
 import hashlib
@@ -191,10 +194,13 @@ def run(case, args):
         open(os.path.join(d, "scene.toml"), "w").write(toml)
         extra = ["--scene", os.path.join(d, "scene.toml")]
     got = {}
-    for name, binary in (("a", args.a), ("b", args.b)):
+    for name, binary, threads in (("a", args.a, args.threads[0]), ("b", args.b, args.threads[1])):
         out = os.path.join(d, name)
+        env = dict(os.environ)
+        if threads:
+            env["RAYON_NUM_THREADS"] = threads
         r = subprocess.run([binary, "--no-progress", "map", "--echoes", os.path.join(d, "e.csv"),
-                            "--mapper", "evidence", "--out", out] + extra, capture_output=True, text=True)
+                            "--mapper", "evidence", "--out", out] + extra, capture_output=True, text=True, env=env)
         if r.returncode != 0:
             got[name] = ("error", r.stderr.strip()[-300:])
         else:
@@ -215,10 +221,16 @@ def main():
     ap.add_argument("--kinds", default="room,headon,clutter,dense")
     ap.add_argument("--param", action="append", default=[],
                     help="a [mapping.evidence] line for both runs, e.g. min_line_length_m=1.0 (repeatable)")
+    ap.add_argument("--threads", default="", help="RAYON_NUM_THREADS for A and B, e.g. 1,2")
     ap.add_argument("--work", default="/tmp/differential", help="where differing cases are kept")
     ap.add_argument("--jobs", type=int, default=2)
     args = ap.parse_args()
     args.param = [p.replace("=", " = ", 1) for p in args.param]
+    threads = args.threads.split(",") if args.threads else ["", ""]
+    if len(threads) != 2 or not all(t == "" or (t.isdigit() and int(t) > 0) for t in threads):
+        print(f"differential.py: --threads wants two positive counts, e.g. 1,2 (got {args.threads})", file=sys.stderr)
+        sys.exit(2)
+    args.threads = threads
     kinds = args.kinds.split(",")
     unknown = [k for k in kinds if k not in KINDS]
     if unknown:

@@ -10,6 +10,7 @@ import signal
 import sys
 import threading
 import time
+import warnings
 
 import numpy as np
 import pytest
@@ -274,6 +275,31 @@ def interrupted_after(seconds: float, call) -> float:
     return took
 
 
+def interrupted_once_waiting(call, give_up_s: float) -> list:
+    """Runs `call` with SIGINT sent as soon as it warns that it waits for
+    an interrupted call's work (or after `give_up_s` if it never does), and
+    returns the warnings it gave. Sent after a fixed delay instead, the signal
+    could land while the call still converted its arguments, before it
+    reached the wait (the earlier work on both cores slows that down): at
+    640 000 echoes the conversion took 0.07 s of a 0.1 s delay alone, and the
+    test failed in about one run of three (CI of session 24)."""
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+
+        def fire():
+            deadline = time.perf_counter() + give_up_s
+            while not seen and time.perf_counter() < deadline:
+                time.sleep(0.002)
+            os.kill(os.getpid(), signal.SIGINT)
+
+        sender = threading.Thread(target=fire)
+        sender.start()
+        with pytest.raises(KeyboardInterrupt):
+            call()
+        sender.join()
+    return [w for w in seen if issubclass(w.category, RuntimeWarning) and "interrupted call" in str(w.message)]
+
+
 def test_ctrl_c_interrupts_a_call():
     """SIGINT during a call raises KeyboardInterrupt at once, not when the
     call returns (the pipeline has no points at which it checks for signals;
@@ -286,8 +312,7 @@ def test_ctrl_c_interrupts_a_call():
     took = interrupted_after(0.1, slow)
     assert took < 0.5 * once, f"KeyboardInterrupt came after {took:.3f} s; the whole call takes {once:.3f} s"
     # Interrupted again while waiting for the first call's work: no second worker starts.
-    with pytest.warns(RuntimeWarning, match="interrupted call"):
-        interrupted_after(0.1, slow)
+    assert interrupted_once_waiting(slow, 0.5 * once), "the next call did not wait for the interrupted work"
     if sys.platform.startswith("linux"):
         assert chirpmap_threads() <= 1, f"{chirpmap_threads()} workers of interrupted calls run at once"
     with pytest.warns(RuntimeWarning, match="interrupted call"):
