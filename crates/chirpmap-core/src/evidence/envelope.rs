@@ -108,7 +108,6 @@ struct EnvPoint {
 pub(crate) fn find_points(ctx: &Ctx, skip: &[bool], walls: &[super::vote::Wall], max_points: usize) -> Vec<PointOut> {
     let p = ctx.params;
     let (trusted, reach) = super::vote::trusted_reach(walls);
-    let extents: Vec<(super::vote::Wall, (Point, Point))> = walls.iter().map(|w| (*w, w.extent)).collect();
     let moved = |a: &super::Meas, b: &super::Meas| a.listener.dist(b.listener) + a.source.dist(b.source);
     // Path travelled (listener and source) up to each measurement, from its
     // listener's first, and where each listener's measurements end.
@@ -197,7 +196,6 @@ pub(crate) fn find_points(ctx: &Ctx, skip: &[bool], walls: &[super::vote::Wall],
     // rayon's threads (the same counts whatever their number).
     let pts: Vec<Point> = env.iter().map(|e| e.p).collect();
     let pile = Pile::new(&pts, p.point_radius_m);
-    let neighbours = |i: usize| pile.within(i);
     let density: Vec<usize> = {
         use rayon::prelude::*;
         (0..env.len()).into_par_iter().map(|i| pile.count_within(i)).collect()
@@ -215,7 +213,7 @@ pub(crate) fn find_points(ctx: &Ctx, skip: &[bool], walls: &[super::vote::Wall],
         if taken[seed] {
             continue;
         }
-        let members: Vec<usize> = neighbours(seed).into_iter().filter(|&j| !taken[j]).collect();
+        let members: Vec<usize> = pile.within(seed).into_iter().filter(|&j| !taken[j]).collect();
         // Support: distinct measurements among the members' echoes.
         let mut touches: Vec<(usize, Point)> = Vec::new();
         let mut meas_seen = std::collections::BTreeSet::new();
@@ -264,6 +262,9 @@ pub(crate) fn find_points(ctx: &Ctx, skip: &[bool], walls: &[super::vote::Wall],
             .iter()
             .zip(&reach)
             .any(|(w, r)| w.support >= 10 * meas_seen.len() && on_wall(std::slice::from_ref(r), at, p.point_radius_m));
+        if leftover {
+            continue;
+        }
         // Behind a found wall (beyond the cluster radius from its line, on
         // the far side for most of its echoes' paths): the image of a
         // higher-order reflection, as for lines and the vote's points. A walk
@@ -273,13 +274,10 @@ pub(crate) fn find_points(ctx: &Ctx, skip: &[bool], walls: &[super::vote::Wall],
         // small ones outside, none inside). A point within the radius of a
         // line is left alone: on the loop past circles short lines hug the
         // circles, and their points would go.
-        let behind: Vec<(Point, Point)> = extents
-            .iter()
-            .filter(|(w, _)| ((at - w.at).dot(w.normal)).abs() > p.point_radius_m)
-            .map(|(_, e)| *e)
-            .collect();
+        let behind: Vec<(Point, Point)> =
+            walls.iter().filter(|w| ((at - w.at).dot(w.normal)).abs() > p.point_radius_m).map(|w| w.extent).collect();
         let ks: Vec<usize> = touches.iter().map(|&(k, _)| k).collect();
-        if leftover || super::vote::hidden(ctx, &ks, at, &behind) {
+        if super::vote::hidden(ctx, &ks, at, &behind) {
             continue;
         }
         for &(k, _) in &touches {
