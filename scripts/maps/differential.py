@@ -29,10 +29,23 @@ maps a screen of Hough peaks changed (BENCHMARKS.md, session 24).
 With --threads A,B the two runs get RAYON_NUM_THREADS=A and =B: one binary
 given twice then checks that the maps do not depend on the thread count.
 
+With --tol M a change that claims "the same surfaces" rather than the same
+bits is checked: surfaces.csv and highlights.csv must have the same rows, with
+equal kinds, supports and ambiguity flags and coordinates within M metres;
+map.npy is not compared. Whatever the mode, the script also counts the true
+walls each binary finds (a non-ambiguous line within 5 cm and 2 degrees of the
+wall, its midpoint on the wall) and prints both totals, so a change that loses
+walls shows even where it is allowed to change bits.
+
+The echoes have no sigma_m column (the mapper's default σ of 2 cm) unless
+--sigma-m S gives every echo σ = S (noisy scenes then get noise of σ = S):
+precise echoes narrow the bands, and a heuristic tuned at 2 cm can fail at
+1 mm (session 17's fan screen, EXPERIMENTS.md).
+
 Usage:
   scripts/maps/differential.py A_BIN B_BIN [--n 100] [--start 0]
       [--kinds room,headon,clutter,dense] [--param min_line_length_m=1.0]
-      [--threads 1,2] [--work /tmp/differential]
+      [--threads 1,2] [--sigma-m 0.001] [--tol 1e-6] [--work /tmp/differential]
 """
 import argparse
 import hashlib
@@ -162,19 +175,72 @@ def scene(rng, kind):
             "noise": noise, "seed": rng.randrange(10 ** 6)}
 
 
-def write_echoes(spec, path):
+def write_echoes(spec, path, sigma_m=None):
+    """The scene's echoes as an echoes CSV; with `sigma_m`, every echo says its
+    σ in a sigma_m column and a noisy scene's noise has that σ."""
     rng = random.Random(spec["seed"])
+    noise = spec["noise"] if sigma_m is None or not spec["noise"] else sigma_m
     rows = 0
     with open(path, "w") as f:
-        f.write("source_x,source_y,listener_x,listener_y,delta_d,weight,t,listener\n")
+        f.write("source_x,source_y,listener_x,listener_y,delta_d,weight,t,listener")
+        f.write(",sigma_m\n" if sigma_m is not None else "\n")
+        tail = f",{sigma_m!r}\n" if sigma_m is not None else "\n"
         for i, lis in enumerate(spec["poses"]):
             for dd in echoes(spec["source"], spec["walls"], spec["circles"], lis):
-                dd += rng.gauss(0, spec["noise"]) if spec["noise"] else 0.0
+                dd += rng.gauss(0, noise) if noise else 0.0
                 if dd > 0:
                     s = spec["source"]
-                    f.write(f"{s[0]!r},{s[1]!r},{lis[0]!r},{lis[1]!r},{dd!r},1,{i * 0.1!r},0\n")
+                    f.write(f"{s[0]!r},{s[1]!r},{lis[0]!r},{lis[1]!r},{dd!r},1,{i * 0.1!r},0{tail}")
                     rows += 1
     return rows
+
+
+def read_rows(path):
+    with open(path) as f:
+        return [line.rstrip("\n").split(",") for line in f][1:]
+
+
+def near_same(a_dir, b_dir, tol):
+    """Whether both outputs hold the same surfaces and highlights, coordinates within `tol`."""
+    for name, coords in (("surfaces.csv", (1, 2, 3, 4)), ("highlights.csv", (0, 1))):
+        ra, rb = read_rows(os.path.join(a_dir, name)), read_rows(os.path.join(b_dir, name))
+        if len(ra) != len(rb):
+            return False
+        for x, y in zip(ra, rb):
+            if len(x) != len(y):
+                return False
+            for j, (u, v) in enumerate(zip(x, y)):
+                if j in coords and u and v:
+                    if abs(float(u) - float(v)) > tol:
+                        return False
+                elif u != v:
+                    return False
+    return True
+
+
+def walls_found(spec, out_dir):
+    """How many of the scene's true walls a non-ambiguous line of the map lies on:
+    both ends within 5 cm of the wall's line, within 2 degrees of it, its
+    midpoint between the wall's ends."""
+    lines = []
+    for r in read_rows(os.path.join(out_dir, "surfaces.csv")):
+        if r[0] == "line" and (len(r) < 7 or r[6] != "true"):
+            lines.append([float(v) for v in r[1:5]])
+    found = 0
+    for x0, y0, x1, y1 in spec["walls"]:
+        ln = math.hypot(x1 - x0, y1 - y0)
+        ux, uy = (x1 - x0) / ln, (y1 - y0) / ln
+        for a0, b0, a1, b1 in lines:
+            la = math.hypot(a1 - a0, b1 - b0)
+            if la == 0:
+                continue
+            off = max(abs((a0 - x0) * uy - (b0 - y0) * ux), abs((a1 - x0) * uy - (b1 - y0) * ux))
+            cos = abs(((a1 - a0) * ux + (b1 - b0) * uy) / la)
+            t = ((a0 + a1) / 2 - x0) * ux + ((b0 + b1) / 2 - y0) * uy
+            if off <= 0.05 and cos >= math.cos(math.radians(2)) and 0 <= t <= ln:
+                found += 1
+                break
+    return found
 
 
 def run(case, args):
@@ -184,7 +250,7 @@ def run(case, args):
     os.makedirs(d)  # a new folder: only what this script created is removed
     spec = scene(rng, kind)
     json.dump(spec, open(os.path.join(d, "spec.json"), "w"))
-    if write_echoes(spec, os.path.join(d, "e.csv")) < 2:
+    if write_echoes(spec, os.path.join(d, "e.csv"), args.sigma_m) < 2:
         shutil.rmtree(d)
         return None
     extra = []
@@ -206,10 +272,16 @@ def run(case, args):
         else:
             got[name] = tuple(hashlib.md5(open(os.path.join(out, f), "rb").read()).hexdigest() for f in FILES)
     failed = any(v[0] == "error" for v in got.values())
-    same = not failed and got["a"] == got["b"]
+    walls = None
+    if not failed:
+        walls = (walls_found(spec, os.path.join(d, "a")), walls_found(spec, os.path.join(d, "b")), len(spec["walls"]))
+    if args.tol is None:
+        same = not failed and got["a"] == got["b"]
+    else:
+        same = not failed and near_same(os.path.join(d, "a"), os.path.join(d, "b"), args.tol)
     if same:
         shutil.rmtree(d)
-    return d, same, failed, got
+    return d, same, failed, got, walls
 
 
 def main():
@@ -222,6 +294,10 @@ def main():
     ap.add_argument("--param", action="append", default=[],
                     help="a [mapping.evidence] line for both runs, e.g. min_line_length_m=1.0 (repeatable)")
     ap.add_argument("--threads", default="", help="RAYON_NUM_THREADS for A and B, e.g. 1,2")
+    ap.add_argument("--sigma-m", type=float, default=None,
+                    help="give every echo this sigma_m (m; noisy scenes get noise of this sigma), e.g. 0.001")
+    ap.add_argument("--tol", type=float, default=None,
+                    help="compare surfaces and highlights within this many metres, not map.npy's bits")
     ap.add_argument("--work", default="/tmp/differential", help="where differing cases are kept")
     ap.add_argument("--jobs", type=int, default=2)
     args = ap.parse_args()
@@ -231,6 +307,12 @@ def main():
         print(f"differential.py: --threads wants two positive counts, e.g. 1,2 (got {args.threads})", file=sys.stderr)
         sys.exit(2)
     args.threads = threads
+    if args.sigma_m is not None and not (args.sigma_m > 0 and math.isfinite(args.sigma_m)):
+        print(f"differential.py: --sigma-m wants a positive sigma in metres (got {args.sigma_m})", file=sys.stderr)
+        sys.exit(2)
+    if args.tol is not None and not (args.tol >= 0 and math.isfinite(args.tol)):
+        print(f"differential.py: --tol wants a distance in metres, 0 or more (got {args.tol})", file=sys.stderr)
+        sys.exit(2)
     kinds = args.kinds.split(",")
     unknown = [k for k in kinds if k not in KINDS]
     if unknown:
@@ -242,18 +324,24 @@ def main():
     os.makedirs(args.work, exist_ok=True)
     cases = [(i, k) for k in kinds for i in range(args.start, args.start + args.n)]
     total = differ = failed = 0
+    walls = [0, 0, 0]
     with ThreadPoolExecutor(args.jobs) as ex:
         for res in ex.map(lambda c: run(c, args), cases):
             if res is None:
                 continue
             total += 1
-            d, same, broke, got = res
+            d, same, broke, got, w = res
+            if w:
+                walls = [x + y for x, y in zip(walls, w)]
+                if w[0] != w[1]:
+                    print(f"walls found: {d} A {w[0]}, B {w[1]} of {w[2]}", flush=True)
             if broke:
                 failed += 1
                 print("failed:", d, got, flush=True)
             elif not same:
                 differ += 1
                 print("differs:", d, got, flush=True)
+    print(f"walls found: A {walls[0]}, B {walls[1]} of {walls[2]}")
     print(f"{total} scenes, {differ} differ, {failed} failed")
     if failed or total == 0:
         sys.exit(2)
