@@ -31,8 +31,8 @@ given twice then checks that the maps do not depend on the thread count.
 
 With --tol M a change that claims "the same surfaces" rather than the same
 bits is checked: surfaces.csv and highlights.csv must have the same rows, with
-equal kinds, supports and ambiguity flags and coordinates within M metres;
-map.npy is not compared. Whatever the mode, the script also counts the true
+equal kinds, supports and ambiguity flags, coordinates within M metres and
+highlight values within a relative 1e-9; map.npy is not compared. Whatever the mode, the script also counts the true
 walls each binary finds (a non-ambiguous line within 5 cm and 2 degrees of the
 wall, its midpoint on the wall) and prints both totals, so a change that loses
 walls shows even where it is allowed to change bits.
@@ -201,8 +201,10 @@ def read_rows(path):
 
 
 def near_same(a_dir, b_dir, tol):
-    """Whether both outputs hold the same surfaces and highlights, coordinates within `tol`."""
-    for name, coords in (("surfaces.csv", (1, 2, 3, 4)), ("highlights.csv", (0, 1))):
+    """Whether both outputs hold the same surfaces and highlights: coordinates
+    within `tol` metres, highlight values (log-odds) within a relative 1e-9,
+    every other field equal."""
+    for name, coords, values in (("surfaces.csv", (1, 2, 3, 4), ()), ("highlights.csv", (0, 1), (2,))):
         ra, rb = read_rows(os.path.join(a_dir, name)), read_rows(os.path.join(b_dir, name))
         if len(ra) != len(rb):
             return False
@@ -212,6 +214,9 @@ def near_same(a_dir, b_dir, tol):
             for j, (u, v) in enumerate(zip(x, y)):
                 if j in coords and u and v:
                     if abs(float(u) - float(v)) > tol:
+                        return False
+                elif j in values:
+                    if abs(float(u) - float(v)) > 1e-9 * max(abs(float(u)), abs(float(v))):
                         return False
                 elif u != v:
                     return False
