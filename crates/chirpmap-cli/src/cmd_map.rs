@@ -3,7 +3,7 @@
 
 use crate::args::{ChirpArgs, parse_bounds, parse_mapper, parse_point};
 use crate::echoes_csv::read_echoes;
-use crate::inputs::{load_scene, prepare_wav};
+use crate::inputs::{load_scene_declaring, prepare_wav};
 use crate::mapout::{PlotFormat, map_outputs, map_summary, provenance, write_map};
 use crate::output::Staged;
 use crate::plot::MapPlot;
@@ -85,7 +85,8 @@ pub struct MapArgs {
     pub plot_format: PlotFormat,
     /// Scene TOML: its obstacles (listed or random, resolved exactly as `simulate` does) are drawn and
     /// scored (score_obstacle / score_highlight); its [mapping] gives the defaults above, and its [chirp]
-    /// the chirp of --wav.
+    /// the chirp of --wav. A file that declares neither [[obstacles]] nor [random_obstacles] (say, only
+    /// [mapping.evidence] settings for a real recording) is not scored.
     #[arg(long)]
     pub scene: Option<PathBuf>,
 }
@@ -94,8 +95,17 @@ pub fn run(args: &MapArgs) -> Result<()> {
     let started = Instant::now();
     let (obstacles, base, chirp_base, pattern_base): (Vec<Obstacle>, MappingParams, ChirpSpec, _) = match &args.scene {
         Some(p) => {
-            let (scene, synth) = load_scene(p)?;
-            let (obstacles, scene) = chirpmap::scene_truth(&scene).map_err(|e| anyhow!("{}: {e}", p.display()))?;
+            let ((scene, synth), declares) = load_scene_declaring(p)?;
+            let (obstacles, scene) = if declares {
+                chirpmap::scene_truth(&scene).map_err(|e| anyhow!("{}: {e}", p.display()))?
+            } else {
+                chirpmap::scene_parameters(&scene).map_err(|e| anyhow!("{}: {e}", p.display()))?;
+                eprintln!(
+                    "note: {} declares no [[obstacles]] or [random_obstacles]: its settings are used, nothing is scored",
+                    p.display()
+                );
+                (Vec::new(), scene)
+            };
             let chirp = ChirpSpec::from_scene(&scene);
             (obstacles, scene.mapping, chirp, synth.pattern)
         }
@@ -124,6 +134,22 @@ pub fn run(args: &MapArgs) -> Result<()> {
         }
         e => e.into(),
     })?;
+    if params.mapper == chirpmap::MapperKind::Evidence {
+        // Algorithm 1's thresholds: the evidence mapper has its own highlight
+        // rule, so a flag it would ignore is refused rather than recorded in
+        // summary.json as if applied.
+        let paper_only = [
+            ("--keep-top", args.keep_top.is_some()),
+            ("--min-of-max", args.min_of_max.is_some()),
+            ("--peak-radius", args.peak_radius.is_some()),
+        ];
+        if let Some((flag, _)) = paper_only.iter().find(|(_, given)| *given) {
+            bail!(
+                "{flag} applies to --mapper paper only; the evidence mapper's highlights are set in a scene's \
+                 [mapping.evidence] (peak_radius_m, highlight_min_logodds; docs/evidence-mapper.md)"
+            );
+        }
+    }
     let mut outputs = map_outputs(params.mapper, args.plot_format);
     outputs.push("summary.json");
     if args.wav.is_some() {
@@ -153,7 +179,7 @@ pub fn run(args: &MapArgs) -> Result<()> {
     if args.wav.is_some() {
         out.write("echoes.csv", echoes_with_rates(&echoes, &rates)?)?;
     }
-    let eval = args.scene.as_ref().map(|_| chirpmap::evaluate(&obstacles, &map, &echoes));
+    let eval = (!obstacles.is_empty()).then(|| chirpmap::evaluate(&obstacles, &map, &echoes));
     let mut title = format!("{} echoes, {} highlights", echoes.len(), map.highlights.len());
     if !map.surfaces.is_empty() {
         title += &format!(", {} surfaces", map.surfaces.len());

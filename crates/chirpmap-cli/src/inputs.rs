@@ -8,8 +8,20 @@ use std::path::Path;
 
 /// Loads a scene file (with its optional `[synth]` table).
 pub fn load_scene(path: &Path) -> Result<(Scene, SynthConfig)> {
+    Ok(load_scene_declaring(path)?.0)
+}
+
+/// Loads a scene file, and says whether it declares obstacles (an
+/// `[[obstacles]]` list or a `[random_obstacles]` table). `map` scores
+/// against declared obstacles only: a file of `[mapping]` settings is not
+/// the default scene's three random obstacles.
+pub fn load_scene_declaring(path: &Path) -> Result<((Scene, SynthConfig), bool)> {
     let text = read_text_input(path, "scene", MAX_TOML_BYTES)?;
-    chirpmap::parse_scene(&text).map_err(|e| anyhow!("{}: {e}", path.display()))
+    let scene = chirpmap::parse_scene(&text).map_err(|e| anyhow!("{}: {e}", path.display()))?;
+    // parse_scene accepted the text, so it parses as a TOML table.
+    let declares =
+        text.parse::<toml::Table>().is_ok_and(|t| t.contains_key("obstacles") || t.contains_key("random_obstacles"));
+    Ok((scene, declares))
 }
 
 /// Reads one channel of a WAV and prepares it for ranging; also returns the

@@ -330,8 +330,10 @@ fn map_scene_with_random_obstacles_is_scored_like_simulate() {
     let sim = tmp.path().join("sim");
     let o = run(&["simulate", "--out", sim.to_str().unwrap()]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // The default scene's random obstacles, declared (an empty file is the
+    // default scene to `simulate`, but `map` scores declared obstacles only).
     let empty = tmp.path().join("empty.toml");
-    std::fs::write(&empty, "").unwrap();
+    std::fs::write(&empty, "[random_obstacles]\n").unwrap();
     let out = tmp.path().join("map");
     let echoes = sim.join("echoes.csv");
     map_scored(&echoes, &empty, &["--bounds", "-50,-50,50,50"], &out);
@@ -356,6 +358,65 @@ fn rerun_into_the_same_directory_drops_the_previous_runs_extra_files_only() {
     assert!(!out.join("spectrum.png").exists());
     assert!(out.join("summary.json").exists() && out.join("map.png").exists());
     assert_eq!(std::fs::read_to_string(out.join("notes.txt")).unwrap(), "mine", "a user's file was touched");
+}
+
+/// The evidence mapper on echoes without `t` and `listener` columns (the
+/// README's minimal format): each row's pose is told apart by its
+/// position, so the three circles map as they do with times (before, every
+/// row was one measurement and the map had no surface). A scene file with
+/// only `[mapping]` sets the mapper and is not scored against the default
+/// scene's random obstacles; Algorithm 1's threshold flags are refused with
+/// the evidence mapper, which would ignore them.
+#[test]
+fn evidence_mapper_on_minimal_echoes_with_a_parameters_only_scene() {
+    let tmp = tempfile::tempdir().unwrap();
+    let full = std::fs::read_to_string(repo().join("examples/three-circles/echoes.csv")).unwrap();
+    let minimal: String = full.lines().map(|l| l.splitn(6, ',').take(5).collect::<Vec<_>>().join(",") + "\n").collect();
+    assert!(minimal.starts_with("source_x,source_y,listener_x,listener_y,delta_d\n"), "{}", &minimal[..80]);
+    let (with_t, without_t) = (tmp.path().join("full.csv"), tmp.path().join("minimal.csv"));
+    std::fs::write(&with_t, &full).unwrap();
+    std::fs::write(&without_t, minimal).unwrap();
+    let params = tmp.path().join("params.toml");
+    std::fs::write(&params, "[mapping]\nmapper = \"evidence\"\n").unwrap();
+    let surfaces = |echoes: &Path, name: &str| {
+        let out = tmp.path().join(name);
+        let o = run(&[
+            "map",
+            "--echoes",
+            echoes.to_str().unwrap(),
+            "--scene",
+            params.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let stderr = String::from_utf8_lossy(&o.stderr).into_owned();
+        assert!(stderr.contains("declares no [[obstacles]] or [random_obstacles]"), "{stderr}");
+        assert!(!String::from_utf8_lossy(&o.stdout).contains("score_obstacle"), "scored against no truth");
+        let summary: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+        assert_eq!(summary["mapper"], "evidence");
+        assert!(summary["score_obstacle"].is_null(), "{summary}");
+        std::fs::read_to_string(out.join("surfaces.csv")).unwrap()
+    };
+    let timed = surfaces(&with_t, "timed");
+    assert!(timed.lines().count() > 1, "{timed}");
+    assert_eq!(surfaces(&without_t, "untimed"), timed);
+    let out = tmp.path().join("refused");
+    let o = run(&[
+        "map",
+        "--echoes",
+        with_t.to_str().unwrap(),
+        "--mapper",
+        "evidence",
+        "--peak-radius",
+        "3",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success() && !out.exists());
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(stderr.contains("--peak-radius applies to --mapper paper only"), "{stderr}");
 }
 
 #[test]

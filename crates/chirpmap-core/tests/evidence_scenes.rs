@@ -329,6 +329,43 @@ fn room_map_is_identical_whatever_the_thread_count() {
     }
 }
 
+/// An echoes file without `t` or `listener` columns gives every row t = 0
+/// of listener 0. Measurements are then told apart by the listener's
+/// position, in the file's order: the room walked without times maps as it
+/// does with them (before, the whole walk was one measurement and the map
+/// had no surface). Two microphones on one robot under one id are two poses
+/// at each time, not one measurement holding both microphones' echoes.
+#[test]
+fn rows_without_times_are_poses_in_file_order() {
+    let room = polygon(&[(0.0, 0.0), (8.0, 0.0), (8.0, 6.0), (0.0, 6.0)]);
+    let scene = ExactScene::from_obstacles(&[room, circle(5.5, 3.8, 0.3)]);
+    let poses = loop_poses(Point::new(4.0, 3.0), 2.6, 1.8, 160);
+    let echoes = exact_echoes(Point::new(2.0, 2.5), &poses, &scene, &ExactOptions::default()).expect("exact echoes");
+    let spec = GridSpec::from_bounds([-3.0, -3.0, 11.0, 9.0], 0.1, u128::MAX).expect("grid");
+    let params = EvidenceParams::default();
+    let timed = map_evidence(&echoes, spec, &params).expect("evidence map");
+    assert!(timed.surfaces.iter().filter(|s| s.kind == SurfaceKind::Line).count() >= 4);
+    let untimed: Vec<Echo> = echoes.iter().map(|e| Echo { t_s: 0.0, ..*e }).collect();
+    assert_eq!(map_evidence(&untimed, spec, &params).expect("evidence map"), timed);
+
+    // A second microphone 0.3 m beside the first, the same id and times:
+    // its echoes interleaved with the first's, pose by pose.
+    let beside: Vec<Pose> =
+        poses.iter().map(|p| Pose { t_s: p.t_s, listener: p.listener + Point::new(0.0, 0.3) }).collect();
+    let second = exact_echoes(Point::new(2.0, 2.5), &beside, &scene, &ExactOptions::default()).expect("exact echoes");
+    let mut both: Vec<Echo> = Vec::new();
+    for t in 0..poses.len() {
+        let at = |e: &&Echo| e.t_s == t as f64;
+        both.extend(echoes.iter().filter(at).copied());
+        both.extend(second.iter().filter(at).copied());
+    }
+    let map = map_evidence(&both, spec, &params).expect("evidence map");
+    let lines = map.surfaces.iter().filter(|s| s.kind == SurfaceKind::Line && !s.ambiguous).count();
+    assert!(lines >= 4, "{lines} walls from two microphones under one id");
+    let most = map.surfaces.iter().map(|s| s.support).max().unwrap_or(0);
+    assert!(most <= 2 * poses.len(), "support {most} from {} poses of two microphones", poses.len());
+}
+
 #[test]
 fn pole_beside_a_straight_walk_is_one_point() {
     // The paper's field environment B: a 0.1 m pole 4 m from the source, a

@@ -54,6 +54,17 @@ pub fn scene_truth(scene: &Scene) -> Result<(Vec<Obstacle>, Scene)> {
     Ok((resolved.obstacles, resolved.scene))
 }
 
+/// Checks a scene used only for its parameters (`[mapping]`, `[chirp]`), as
+/// [`scene_truth`] checks it, with no obstacles resolved: `map --scene` with
+/// a file that declares neither `[[obstacles]]` nor `[random_obstacles]`,
+/// whose default random obstacles would belong to no recording.
+pub fn scene_parameters(scene: &Scene) -> Result<()> {
+    scene.validate()?;
+    scene.chirp.build()?;
+    scene.mapping.validate()?;
+    Ok(())
+}
+
 /// Simulates `scene` (its `seed` and `run_index` fix the run bit for bit),
 /// maps the echoes on the scene's world with its `[mapping]`, and scores
 /// the highlights against the scene's obstacles.

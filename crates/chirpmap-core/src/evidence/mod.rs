@@ -4,7 +4,7 @@
 //!
 //! 1. **Uncertainty.** Each echo is a band of confocal ellipses Δd ± kσ
 //!    ([`band`]), σ from [`Echo::sigma_m`] or [`EvidenceParams::default_sigma_m`].
-//! 2. **Free space.** Within one measurement (same `t_s` and `listener_id`) no
+//! 2. **Free space.** Within one measurement (same `t_s`, `listener_id` and positions) no
 //!    reflector lies inside the first (smallest Δd) echo's ellipse: carved in
 //!    log-odds, softly, as the sonar occupancy grid of Moravec and Elfes
 //!    (1985) and Elfes (1989) carves a beam's "everywhere empty" region.
@@ -121,8 +121,9 @@ impl EvidenceParams {
             Err(CoreError::InvalidParam { field, reason: reason.into() })
         }
         let pos = |v: f64| v.is_finite() && v > 0.0;
-        if !pos(self.default_sigma_m) {
-            return bad("evidence.default_sigma_m", "must be finite and > 0");
+        // The same bound as an echo's own sigma_m ([`crate::echo::MAX_SIGMA_M`]).
+        if !(pos(self.default_sigma_m) && self.default_sigma_m <= crate::echo::MAX_SIGMA_M) {
+            return bad("evidence.default_sigma_m", "must be finite, > 0 and at most 1e6 m");
         }
         if !(self.band_sigmas.is_finite() && self.band_sigmas >= 0.5 && self.band_sigmas <= 10.0) {
             return bad("evidence.band_sigmas", "must be in [0.5, 10]");
@@ -596,7 +597,14 @@ fn prepare<'a>(echoes: &[Echo], spec: GridSpec, params: &'a EvidenceParams) -> R
         }
         preps.push(Prep { ellipse: e.ellipse()?, sigma_m, meas: 0 });
     }
-    // Measurements: same listener id and time, in (listener, time) order.
+    // Measurements: same listener id and time, in (listener, time) order,
+    // and the same listener and source positions. An echoes file without
+    // `t` or `listener` columns gives every row t = 0 of listener 0, so
+    // equal ids and times alone merged a whole walk, or every microphone of
+    // a static array, into one measurement: one pose, no runs, and free
+    // space carved from another pose's first echo (the map had no surfaces).
+    // The sort is stable, so such rows keep the file's order: each change of
+    // position starts the next pose.
     let mut order: Vec<usize> = (0..echoes.len()).collect();
     order.sort_by(|&a, &b| {
         echoes[a].listener_id.cmp(&echoes[b].listener_id).then(echoes[a].t_s.total_cmp(&echoes[b].t_s))
@@ -606,7 +614,7 @@ fn prepare<'a>(echoes: &[Echo], spec: GridSpec, params: &'a EvidenceParams) -> R
         let e = &echoes[k];
         let same = meas.last().is_some_and(|m: &Meas| {
             let first = &echoes[m.echoes[0]];
-            m.listener_id == e.listener_id && first.t_s == e.t_s
+            m.listener_id == e.listener_id && first.t_s == e.t_s && m.listener == e.listener && m.source == e.source
         });
         if !same {
             let seq = match meas.last() {
@@ -1067,6 +1075,9 @@ mod tests {
             EvidenceParams { hit_logodds: 1e308, ..Default::default() },
             EvidenceParams { ring_logodds: 1e39, ..Default::default() },
             EvidenceParams { free_logodds: -1e308, ..Default::default() },
+            // An echo's own sigma_m is refused above 1e6 m; the default too.
+            EvidenceParams { default_sigma_m: 1e300, ..Default::default() },
+            EvidenceParams { default_sigma_m: 1.000001e6, ..Default::default() },
         ];
         for p in bad {
             assert!(p.validate().is_err(), "{p:?}");
