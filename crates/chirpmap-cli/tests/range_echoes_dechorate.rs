@@ -5,7 +5,9 @@
 //! Regression floor of EXPERIMENTS.md's real-room results (measured there
 //! with ten 1 s chirps): the first vertical-plane echo (floor or ceiling)
 //! within 3 cm in every recording, the ceiling in every `cfg011100` one,
-//! the nearest side wall in at least half, no echo below Δd 0.45 m.
+//! the nearest side wall in at least half, no echo below Δd 0.45 m. And the
+//! static-array workflow end to end: `range --input rir --echoes` on the
+//! five `cfg011100` microphones, concatenated, mapped by the evidence mapper.
 #![allow(clippy::unwrap_used)] // Tests may panic on broken fixtures.
 
 use chirpmap_audio::{SampleFormat, read_wav, write_wav};
@@ -132,4 +134,80 @@ fn ten_real_rirs_floor_or_ceiling_walls_and_no_ringing() {
     assert!(wall >= 5, "nearest side wall in {wall}/10");
     assert_eq!(low, 0);
     assert!(total >= 250, "{total} echoes");
+}
+
+/// The real-room workflow the docs describe: `range --input rir --echoes`
+/// on each microphone of the `cfg011100` array, the files concatenated in
+/// the array's order (every row t = 0 of listener 0), then `map` with the
+/// evidence mapper and a file of `[mapping]` settings only. Each row's
+/// microphone position is its own pose, so the array's five positions give
+/// runs of tangent ellipses: lines, every one mirror-ambiguous (a linear
+/// array), one of them on the wall x = 0. Before, the five microphones were
+/// one measurement and the map had no surface; and the settings file was
+/// scored against the default scene's three random obstacles.
+#[test]
+fn a_static_array_maps_walls_from_concatenated_range_output() {
+    let text = std::fs::read_to_string(data("rirs_index.csv")).unwrap();
+    let mut lines = text.lines();
+    let head: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let tmp = tempfile::tempdir().unwrap();
+    let mut all = String::new();
+    for line in lines {
+        let row: Vec<&str> = line.split(',').collect();
+        let s = |n: &str| row[head.iter().position(|h| *h == n).unwrap()];
+        if s("config") != "011100" {
+            continue;
+        }
+        let out = tmp.path().join(format!("mic{}", s("mic_id")));
+        let (spk, mic) = (
+            format!("{},{},{}", s("src_x"), s("src_y"), s("src_z")),
+            format!("{},{},{}", s("mic_x"), s("mic_y"), s("mic_z")),
+        );
+        let o = Command::new(env!("CARGO_BIN_EXE_chirpmap"))
+            .args(["--no-progress", "range", data(s("file")).to_str().unwrap(), "--input", "rir"])
+            .args(["--speed-of-sound", &A.to_string(), "--max-delta-d", "8", "--speaker", &spk, "--mic", &mic])
+            .args(["--floor-z", "0", "--ceiling-z", "2.355", "--echoes", "--out", out.to_str().unwrap()])
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let csv = std::fs::read_to_string(out.join("echoes.csv")).unwrap();
+        let skip = usize::from(!all.is_empty());
+        for l in csv.lines().skip(skip) {
+            all.push_str(l);
+            all.push('\n');
+        }
+    }
+    let echoes = tmp.path().join("array.csv");
+    std::fs::write(&echoes, &all).unwrap();
+    let params = tmp.path().join("params.toml");
+    std::fs::write(
+        &params,
+        "[mapping]\nmapper = \"evidence\"\ncell = 0.05\n[mapping.evidence]\nmin_line_length_m = 0.0\n",
+    )
+    .unwrap();
+    let out = tmp.path().join("map");
+    let o = Command::new(env!("CARGO_BIN_EXE_chirpmap"))
+        .args(["--no-progress", "map", "--echoes", echoes.to_str().unwrap(), "--scene", params.to_str().unwrap()])
+        .args(["--out", out.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(!String::from_utf8_lossy(&o.stdout).contains("score_obstacle"), "scored against no truth");
+    let surfaces = std::fs::read_to_string(out.join("surfaces.csv")).unwrap();
+    let walls: Vec<[f64; 4]> = surfaces
+        .lines()
+        .skip(1)
+        .filter(|l| l.starts_with("line,"))
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            assert_eq!(f[6], "true", "a line from a linear array that is not ambiguous: {l}");
+            [f[1].parse().unwrap(), f[2].parse().unwrap(), f[3].parse().unwrap(), f[4].parse().unwrap()]
+        })
+        .collect();
+    assert!(walls.len() >= 4, "{surfaces}");
+    // The wall x = 0: both ends within 5 cm of it, within 3 degrees of vertical.
+    let on_x0 = walls.iter().any(|&[x0, y0, x1, y1]| {
+        x0.abs() <= 0.05 && x1.abs() <= 0.05 && ((x1 - x0).abs() / (y1 - y0).abs()).atan().to_degrees() <= 3.0
+    });
+    assert!(on_x0, "{surfaces}");
 }
