@@ -57,10 +57,8 @@ pub fn scene_truth(scene: &Scene) -> Result<(Vec<Obstacle>, Scene)> {
 /// Checks the settings of a scene used only for them (`[mapping]`,
 /// `[chirp]`): `map --scene` with a file that declares neither
 /// `[[obstacles]]` nor `[random_obstacles]`, whose default random obstacles
-/// would belong to no recording. Its other tables are not used, so they are
-/// not checked against one another: a `[world]` smaller than the default
-/// random obstacles' region is fine here (the chirp's speed of sound is
-/// checked where a recording is ranged with it).
+/// would belong to no recording, so none are placed (the tables as such were
+/// checked when the file was parsed, [`parse_scene`]).
 pub fn scene_parameters(scene: &Scene) -> Result<()> {
     scene.chirp.build()?;
     scene.mapping.validate()?;
