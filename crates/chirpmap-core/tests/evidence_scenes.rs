@@ -366,6 +366,39 @@ fn rows_without_times_are_poses_in_file_order() {
     assert!(most <= 2 * poses.len(), "support {most} from {} poses of two microphones", poses.len());
 }
 
+/// A grid cropped to part of a room (as `map --bounds` does) keeps the
+/// walls beyond it: the line vote reaches every echo's tangent lines, so
+/// the wall x = 0, 3 m outside the crop, still explains its echoes. Before,
+/// the vote covered only lines within the grid's half-diagonal: the wall
+/// was lost, and its echoes became compact reflectors inside the crop where
+/// nothing is (a synthesized room walk gave two, at (7.55, 1.32) and
+/// (7.31, 5.30)).
+#[test]
+fn cropping_the_grid_keeps_walls_beyond_it() {
+    let room = polygon(&[(0.0, 0.0), (8.0, 0.0), (8.0, 6.0), (0.0, 6.0)]);
+    let truth = [room, circle(5.5, 3.8, 0.3)];
+    let scene = ExactScene::from_obstacles(&truth);
+    let poses = loop_poses(Point::new(4.0, 3.0), 2.6, 1.8, 160);
+    let echoes = exact_echoes(Point::new(2.0, 2.5), &poses, &scene, &ExactOptions::default()).expect("exact echoes");
+    let params = EvidenceParams::default();
+    let full = GridSpec::from_bounds([-3.0, -3.0, 11.0, 9.0], 0.1, u128::MAX).expect("grid");
+    let crop = GridSpec::from_bounds([3.0, 1.0, 9.0, 7.0], 0.1, u128::MAX).expect("grid");
+    let (whole, cropped) =
+        (map_evidence(&echoes, full, &params).expect("map"), map_evidence(&echoes, crop, &params).expect("map"));
+    let lines = |m: &chirpmap_core::EvidenceMap| -> Vec<chirpmap_core::Surface> {
+        m.surfaces.iter().filter(|s| s.kind == SurfaceKind::Line).copied().collect()
+    };
+    assert_eq!(lines(&whole).len(), 4, "{:?}", whole.surfaces);
+    for w in lines(&whole) {
+        let kept = lines(&cropped).iter().any(|c| c.p0.dist(w.p0) < 0.01 && c.p1.dist(w.p1) < 0.01);
+        assert!(kept, "wall {w:?} lost by the crop: {:?}", cropped.surfaces);
+    }
+    for s in &cropped.surfaces {
+        let d = truth_distance(&truth, s.p0).min(truth_distance(&truth, s.p1));
+        assert!(d <= 0.35, "{s:?} is {d:.2} m from every surface");
+    }
+}
+
 #[test]
 fn pole_beside_a_straight_walk_is_one_point() {
     // The paper's field environment B: a 0.1 m pole 4 m from the source, a

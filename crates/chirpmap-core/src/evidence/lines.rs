@@ -914,17 +914,59 @@ fn mirror_twin(ctx: &Ctx, a: &LineOut, origin: Point) -> Option<(f64, f64)> {
 /// `rho_bin` over [−`r_max`, `r_max`], normal angles in `k_bins` bins of `bin`.
 struct Geom {
     origin: Point,
+    /// The grid's reach: half its diagonal plus a cell.
     r_max: f64,
     rho_bin: f64,
+    /// Offset bins past ±`r_max` on each side, for echoes whose tangent
+    /// lines reach beyond the grid ([`Geom::new`]); bin `b`'s offset is
+    /// (`b` − `ext`)·`rho_bin` − `r_max`.
+    ext: usize,
     n_rho: usize,
     k_bins: usize,
     bin: f64,
 }
 
+/// Most offset bins a vote row may have.
+const MAX_RHO_BINS: usize = 1 << 20;
+
 impl Geom {
+    /// The grid's vote geometry, its offsets extended to every echo's tangent
+    /// lines. With bounds cropped to part of the echoes (`map --bounds`), a
+    /// wall outside the grid's reach was never voted: its echoes were left
+    /// unexplained, and the compact-reflector stages made points of them
+    /// inside the grid, while the wall's mirror twin was reported alone
+    /// (test `cropping_the_grid_keeps_walls_beyond_it`). Extending by whole
+    /// bins leaves every bin's offset the same bits, so a grid that covers
+    /// its echoes (the default bounds) votes exactly as before. The memory
+    /// cap and [`MAX_RHO_BINS`] bound the extension.
     fn new(ctx: &Ctx) -> Self {
         let rho_bin = vote_rho_bin(ctx.spec.cell_m, ctx.params, ctx.preps.iter().map(|p| p.sigma_m));
-        Self::of(&ctx.spec, ctx.params.angle_bins, rho_bin, origin_of(ctx))
+        let origin = origin_of(ctx);
+        let mut g = Self::of(&ctx.spec, ctx.params.angle_bins, rho_bin, origin);
+        // A far tangent offset is at most the farthest point of the band's
+        // outer ellipse from the origin: within |c − o| + a and within the
+        // farthest corner of the ellipse's bounding box.
+        let reach = ctx
+            .preps
+            .iter()
+            .map(|p| {
+                let e = &p.ellipse;
+                let a = e.semi_major_m + 0.5 * ctx.params.band_sigmas * p.sigma_m;
+                let half_d = 0.5 * e.focus_a.dist(e.focus_b);
+                let b = (a * a - half_d * half_d).max(0.0).sqrt();
+                let hx = (a * e.cos_t).hypot(b * e.sin_t);
+                let hy = (a * e.sin_t).hypot(b * e.cos_t);
+                let d = e.center - origin;
+                (d.norm() + a).min((d.x.abs() + hx).hypot(d.y.abs() + hy))
+            })
+            .fold(0.0, f64::max);
+        if reach > g.r_max {
+            let cap_bins = ((DEFAULT_MEMORY_CAP_BYTES / 4) / g.k_bins as u128).min(MAX_RHO_BINS as u128) as usize;
+            let room = cap_bins.saturating_sub(g.n_rho) / 2;
+            g.ext = (((reach - g.r_max) / rho_bin).ceil() as usize).min(room);
+            g.n_rho += 2 * g.ext;
+        }
+        g
     }
     fn of(spec: &GridSpec, angle_bins: u32, rho_bin: f64, origin: Point) -> Self {
         let r_max = 0.5 * (spec.x_max_m() - spec.x_min_m).hypot(spec.y_max_m() - spec.y_min_m) + spec.cell_m;
@@ -933,14 +975,19 @@ impl Geom {
             origin,
             r_max,
             rho_bin,
-            n_rho: ((2.0 * r_max / rho_bin).ceil() as usize + 1).min(1 << 20),
+            ext: 0,
+            n_rho: ((2.0 * r_max / rho_bin).ceil() as usize + 1).min(MAX_RHO_BINS),
             k_bins,
             bin: TAU / k_bins as f64,
         }
     }
+    /// The offset of bin `b`.
+    fn offset_of(&self, b: usize) -> f64 {
+        (b as f64 - self.ext as f64) * self.rho_bin - self.r_max
+    }
     /// The line of Hough cell (`t`, `b`): normal angle and offset.
     fn line_of(&self, t: usize, b: usize) -> (f64, f64) {
-        (t as f64 * self.bin, b as f64 * self.rho_bin - self.r_max)
+        (t as f64 * self.bin, self.offset_of(b))
     }
 }
 
@@ -994,6 +1041,8 @@ struct VoteRow<'a> {
     inv_half: &'a [f64],
     centres: &'a [f64],
     r_max: f64,
+    /// [`Geom::ext`] as a float.
+    ext: f64,
     inv_bin: f64,
     window: usize,
 }
@@ -1002,7 +1051,7 @@ impl pulp::WithSimd for VoteRow<'_> {
     type Output = ();
     #[inline(always)]
     fn with_simd<S: pulp::Simd>(self, _: S) {
-        let VoteRow { tan, n, rho_buf, row, half, inv_half, centres, r_max, inv_bin, window } = self;
+        let VoteRow { tan, n, rho_buf, row, half, inv_half, centres, r_max, ext, inv_bin, window } = self;
         let n_rho = row.len();
         tan.offsets(n, rho_buf);
         for ((&rho, &half), &inv_half) in rho_buf.iter().zip(half).zip(inv_half) {
@@ -1010,8 +1059,8 @@ impl pulp::WithSimd for VoteRow<'_> {
             // `lo` or `hi` by one only when a bin centre lies within an ulp
             // of the band's edge, where its weight is 0 or ~1e-16 (and the
             // window keeps a spare cell past the band either way).
-            let lo = ceil_fast((rho - half + r_max) * inv_bin).max(0.0);
-            let hi = floor_fast((rho + half + r_max) * inv_bin).min(n_rho as f64 - 1.0);
+            let lo = (ceil_fast((rho - half + r_max) * inv_bin) + ext).max(0.0);
+            let hi = (floor_fast((rho + half + r_max) * inv_bin) + ext).min(n_rho as f64 - 1.0);
             if lo > hi {
                 continue;
             }
@@ -1032,7 +1081,8 @@ impl pulp::WithSimd for VoteRow<'_> {
 /// most 4 × `max_surfaces`: (votes, angle bin, offset bin).
 fn hough_peaks(ctx: &Ctx, tan: &Tangents, g: &Geom) -> Vec<(f32, usize, usize)> {
     let p = ctx.params;
-    let Geom { r_max, rho_bin, n_rho, k_bins, bin, .. } = *g;
+    let Geom { r_max, rho_bin, n_rho, k_bins, bin, ext, .. } = *g;
+    let ext = ext as f64;
     let trig: Vec<(f64, f64)> = (0..k_bins).map(|t| (t as f64 * bin).sin_cos()).map(|(s, c)| (c, s)).collect();
     // Triangular votes (1 at the tangent offset, 0 at the band's edge plus a
     // bin) so that the angle where the offsets agree best is a strict peak
@@ -1047,7 +1097,7 @@ fn hough_peaks(ctx: &Ctx, tan: &Tangents, g: &Geom) -> Vec<(f32, usize, usize)> 
     let inv_bin = 1.0 / rho_bin;
     // Offset of each bin's centre (the same expression as in the loop it
     // replaces, so the same value), padded by a window for the last spans.
-    let centres: Vec<f64> = (0..n_rho + window).map(|i| i as f64 * rho_bin - r_max).collect();
+    let centres: Vec<f64> = (0..n_rho + window).map(|i| (i as f64 - ext) * rho_bin - r_max).collect();
     // Angle by angle (each echo's votes reach a cell in echo order either
     // way): one accumulator row stays in cache, and the offsets of all
     // echoes at one angle are a straight, vectorisable loop. Rows are
@@ -1061,7 +1111,7 @@ fn hough_peaks(ctx: &Ctx, tan: &Tangents, g: &Geom) -> Vec<(f32, usize, usize)> 
         || vec![0.0; tan.len()],
         |rho_buf, (row, &(nx, ny))| {
             let n = Point::new(nx, ny);
-            arch.dispatch(VoteRow { tan, n, rho_buf, row, half, inv_half, centres, r_max, inv_bin, window });
+            arch.dispatch(VoteRow { tan, n, rho_buf, row, half, inv_half, centres, r_max, ext, inv_bin, window });
         },
     );
     // Peaks: votes ≥ min_support and maximal among the 8 neighbours
