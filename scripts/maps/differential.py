@@ -29,6 +29,11 @@ maps a screen of Hough peaks changed (BENCHMARKS.md, session 24).
 With --threads A,B the two runs get RAYON_NUM_THREADS=A and =B: one binary
 given twice then checks that the maps do not depend on the thread count.
 
+--param writes a scene file of settings only ([source], [mapping]). Binaries
+before session 25 (4410281) took it for the default scene and grew the grid to
+hold its three random obstacles; later ones do not, so --param runs compare
+across that commit only with that difference in the grid.
+
 With --tol M a change that claims "the same surfaces" rather than the same
 bits is checked: surfaces.csv and highlights.csv must have the same rows, with
 equal kinds, supports and ambiguity flags, coordinates within M metres and

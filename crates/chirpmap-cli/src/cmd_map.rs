@@ -85,25 +85,23 @@ pub struct MapArgs {
     pub plot_format: PlotFormat,
     /// Scene TOML: its obstacles (listed or random, resolved exactly as `simulate` does) are drawn and
     /// scored (score_obstacle / score_highlight); its [mapping] gives the defaults above, and its [chirp]
-    /// the chirp of --wav. A file that declares neither [[obstacles]] nor [random_obstacles] (say, only
-    /// [mapping.evidence] settings for a real recording) is not scored.
+    /// the chirp of --wav. A file of settings only ([mapping], [mapping.evidence], [chirp], [synth],
+    /// [source]; say, for a real recording) is not scored.
     #[arg(long)]
     pub scene: Option<PathBuf>,
 }
 
 pub fn run(args: &MapArgs) -> Result<()> {
     let started = Instant::now();
+    let mut settings_only = false;
     let (obstacles, base, chirp_base, pattern_base): (Vec<Obstacle>, MappingParams, ChirpSpec, _) = match &args.scene {
         Some(p) => {
             let ((scene, synth), declares) = load_scene_declaring(p)?;
+            settings_only = !declares;
             let (obstacles, scene) = if declares {
                 chirpmap::scene_truth(&scene).map_err(|e| anyhow!("{}: {e}", p.display()))?
             } else {
                 chirpmap::scene_parameters(&scene).map_err(|e| anyhow!("{}: {e}", p.display()))?;
-                eprintln!(
-                    "note: {} declares no [[obstacles]] or [random_obstacles]: its settings are used, nothing is scored",
-                    p.display()
-                );
                 (Vec::new(), scene)
             };
             let chirp = ChirpSpec::from_scene(&scene);
@@ -149,6 +147,12 @@ pub fn run(args: &MapArgs) -> Result<()> {
                  [mapping.evidence] (peak_radius_m, highlight_min_logodds; docs/evidence-mapper.md)"
             );
         }
+    }
+    if let Some(p) = args.scene.as_ref().filter(|_| settings_only) {
+        eprintln!(
+            "note: {} holds settings only (no scene tables): its settings are used, nothing is scored",
+            p.display()
+        );
     }
     let mut outputs = map_outputs(params.mapper, args.plot_format);
     outputs.push("summary.json");

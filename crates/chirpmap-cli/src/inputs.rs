@@ -11,16 +11,20 @@ pub fn load_scene(path: &Path) -> Result<(Scene, SynthConfig)> {
     Ok(load_scene_declaring(path)?.0)
 }
 
-/// Loads a scene file, and says whether it declares obstacles (an
-/// `[[obstacles]]` list or a `[random_obstacles]` table). `map` scores
-/// against declared obstacles only: a file of `[mapping]` settings is not
-/// the default scene's three random obstacles.
+/// The tables a file of settings for `map` may hold: `[mapping]` (and
+/// `[mapping.evidence]`), `[chirp]`, `[synth]`, `[source]`.
+const SETTINGS_TABLES: [&str; 4] = ["mapping", "chirp", "synth", "source"];
+
+/// Loads a scene file, and says whether it describes a scene to score
+/// against: any table beyond [`SETTINGS_TABLES`] (`[[obstacles]]`,
+/// `[random_obstacles]`, `[[listeners]]`, `[world]`, a seed…) makes it a
+/// scene, resolved as `simulate` resolves it. A file of settings only (or
+/// an empty one) is not the default scene's three random obstacles.
 pub fn load_scene_declaring(path: &Path) -> Result<((Scene, SynthConfig), bool)> {
     let text = read_text_input(path, "scene", MAX_TOML_BYTES)?;
     let scene = chirpmap::parse_scene(&text).map_err(|e| anyhow!("{}: {e}", path.display()))?;
     // parse_scene accepted the text, so it parses as a TOML table.
-    let declares =
-        text.parse::<toml::Table>().is_ok_and(|t| t.contains_key("obstacles") || t.contains_key("random_obstacles"));
+    let declares = text.parse::<toml::Table>().is_ok_and(|t| t.keys().any(|k| !SETTINGS_TABLES.contains(&k.as_str())));
     Ok((scene, declares))
 }
 

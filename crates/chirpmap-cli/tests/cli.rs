@@ -331,7 +331,7 @@ fn map_scene_with_random_obstacles_is_scored_like_simulate() {
     let o = run(&["simulate", "--out", sim.to_str().unwrap()]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     // The default scene's random obstacles, declared (an empty file is the
-    // default scene to `simulate`, but `map` scores declared obstacles only).
+    // default scene to `simulate`, but to `map` a file of settings only).
     let empty = tmp.path().join("empty.toml");
     std::fs::write(&empty, "[random_obstacles]\n").unwrap();
     let out = tmp.path().join("map");
@@ -391,7 +391,7 @@ fn evidence_mapper_on_minimal_echoes_with_a_parameters_only_scene() {
         ]);
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
         let stderr = String::from_utf8_lossy(&o.stderr).into_owned();
-        assert!(stderr.contains("declares no [[obstacles]] or [random_obstacles]"), "{stderr}");
+        assert!(stderr.contains("holds settings only (no scene tables)"), "{stderr}");
         assert!(!String::from_utf8_lossy(&o.stdout).contains("score_obstacle"), "scored against no truth");
         let summary: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
@@ -399,6 +399,21 @@ fn evidence_mapper_on_minimal_echoes_with_a_parameters_only_scene() {
         assert!(summary["score_obstacle"].is_null(), "{summary}");
         std::fs::read_to_string(out.join("surfaces.csv")).unwrap()
     };
+    // A file with any scene table (here [world]) is a scene: its default
+    // random obstacles are scored, as `simulate` would place them.
+    let scene = tmp.path().join("scene.toml");
+    std::fs::write(&scene, "[world]\nspeed_of_sound = 343.0\n[mapping]\nmapper = \"evidence\"\n").unwrap();
+    let o = run(&[
+        "map",
+        "--echoes",
+        with_t.to_str().unwrap(),
+        "--scene",
+        scene.to_str().unwrap(),
+        "--out",
+        tmp.path().join("scored").to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(String::from_utf8_lossy(&o.stdout).contains("score_obstacle"));
     let timed = surfaces(&with_t, "timed");
     assert!(timed.lines().count() > 1, "{timed}");
     assert_eq!(surfaces(&without_t, "untimed"), timed);

@@ -55,6 +55,10 @@ def test_bad_echoes_raise_value_error(rows, message):
         ({"mapper": "evidence", "evidence": {"no_such_key": 2}}, "no_such_key"),
         ({"sigma": -1.0, "mapper": "evidence"}, "`sigma_m` = -1 must be > 0"),
         ({"sigma": [0.1, 0.2, 0.3]}, "could not be broadcast"),
+        # Algorithm 1's thresholds, which the evidence mapper would ignore.
+        ({"mapper": "evidence", "peak_radius": 3.0}, "peak_radius: applies to mapper='paper' only"),
+        ({"mapper": "evidence", "keep_top": 0.2}, "keep_top: applies to mapper='paper' only"),
+        ({"mapper": "evidence", "min_of_max": 0.1}, "min_of_max: applies to mapper='paper' only"),
     ],
 )
 def test_bad_parameters_raise_value_error(kwargs, message):

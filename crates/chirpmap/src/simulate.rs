@@ -55,9 +55,8 @@ pub fn scene_truth(scene: &Scene) -> Result<(Vec<Obstacle>, Scene)> {
 }
 
 /// Checks the settings of a scene used only for them (`[mapping]`,
-/// `[chirp]`): `map --scene` with a file that declares neither
-/// `[[obstacles]]` nor `[random_obstacles]`, whose default random obstacles
-/// would belong to no recording, so none are placed (the tables as such were
+/// `[chirp]`): `map --scene` with a file of settings only, whose default
+/// random obstacles would belong to no recording, so none are placed (the tables as such were
 /// checked when the file was parsed, [`parse_scene`]).
 pub fn scene_parameters(scene: &Scene) -> Result<()> {
     scene.chirp.build()?;

@@ -929,6 +929,11 @@ struct Geom {
 /// Most offset bins a vote row may have.
 const MAX_RHO_BINS: usize = 1 << 20;
 
+/// Most offset bins the vote is extended by on each side, in multiples of
+/// the grid's own ([`Geom::new`]): lines up to five grid reaches from its
+/// centre, enough for a room cropped to a corner of it.
+const MAX_EXTENSION: usize = 2;
+
 impl Geom {
     /// The grid's vote geometry, its offsets extended to every echo's tangent
     /// lines. With bounds cropped to part of the echoes (`map --bounds`), a
@@ -937,8 +942,10 @@ impl Geom {
     /// inside the grid, while the wall's mirror twin was reported alone
     /// (test `cropping_the_grid_keeps_walls_beyond_it`). Extending by whole
     /// bins leaves every bin's offset the same bits, so a grid that covers
-    /// its echoes (the default bounds) votes exactly as before. The memory
-    /// cap and [`MAX_RHO_BINS`] bound the extension.
+    /// its echoes (the default bounds) votes exactly as before. The extension
+    /// is at most [`MAX_EXTENSION`] times the grid's own offsets on each side
+    /// (a 0.5 m grid cropped from echoes 10⁶ m away otherwise voted over
+    /// 1.5 GB), and within the memory cap and [`MAX_RHO_BINS`].
     fn new(ctx: &Ctx) -> Self {
         let rho_bin = vote_rho_bin(ctx.spec.cell_m, ctx.params, ctx.preps.iter().map(|p| p.sigma_m));
         let origin = origin_of(ctx);
@@ -962,7 +969,7 @@ impl Geom {
             .fold(0.0, f64::max);
         if reach > g.r_max {
             let cap_bins = ((DEFAULT_MEMORY_CAP_BYTES / 4) / g.k_bins as u128).min(MAX_RHO_BINS as u128) as usize;
-            let room = cap_bins.saturating_sub(g.n_rho) / 2;
+            let room = (cap_bins.saturating_sub(g.n_rho) / 2).min(MAX_EXTENSION * g.n_rho);
             g.ext = (((reach - g.r_max) / rho_bin).ceil() as usize).min(room);
             g.n_rho += 2 * g.ext;
         }

@@ -229,9 +229,9 @@ def map_echoes(
     bounds: Optional[Sequence[float]] = None,
     cell: float = 0.1,
     mapper: str = "paper",
-    keep_top: float = 0.1,
-    min_of_max: float = 0.01,
-    peak_radius: float = 5.0,
+    keep_top: Optional[float] = None,
+    min_of_max: Optional[float] = None,
+    peak_radius: Optional[float] = None,
     sigma: Union[None, float, Any] = None,
     evidence: Optional[Dict[str, Any]] = None,
     ellipse_points: int = 0,
@@ -252,9 +252,14 @@ def map_echoes(
         cell: grid cell side (m). Paper: 0.1.
         mapper: ``"paper"`` (Algorithm 1) or ``"evidence"`` (surfaces, free
             space, ghosts removed; the map is log-odds of occupancy).
-        keep_top: fraction of non-zero cells kept by the percentile threshold.
-        min_of_max: cells below this fraction of the maximum are zeroed.
-        peak_radius: a highlight is the maximum within this radius (m).
+        keep_top: fraction of non-zero cells kept by the percentile threshold
+            (Algorithm 1 only; ``None``: 0.1).
+        min_of_max: cells below this fraction of the maximum are zeroed
+            (Algorithm 1 only; ``None``: 0.01).
+        peak_radius: a highlight is the maximum within this radius (m)
+            (Algorithm 1 only; ``None``: 5.0). The evidence mapper refuses
+            these three, as ``chirpmap map`` does: its highlights are set in
+            ``evidence`` (``peak_radius_m``, ``highlight_min_logodds``).
         sigma: the 1-σ uncertainty of Δd (m) for the evidence mapper: one
             number for every echo, or an ``(n,)`` array (NaN = none); it
             replaces the ``sigma_m`` column. Echoes without one use
@@ -271,6 +276,17 @@ def map_echoes(
         ValueError: bad echoes (the message names the row and column) or
             parameters, or a grid too large for the memory cap.
     """
+    paper_only = {"keep_top": keep_top, "min_of_max": min_of_max, "peak_radius": peak_radius}
+    if str(mapper) == "evidence":
+        given = [name for name, v in paper_only.items() if v is not None]
+        if given:
+            raise ValueError(
+                f"{given[0]}: applies to mapper='paper' only; the evidence mapper's highlights are set in "
+                "evidence= (peak_radius_m, highlight_min_logodds)"
+            )
+    keep_top = 0.1 if keep_top is None else keep_top
+    min_of_max = 0.01 if min_of_max is None else min_of_max
+    peak_radius = 5.0 if peak_radius is None else peak_radius
     arr = np.ascontiguousarray(echoes, dtype=np.float64)
     if arr.ndim != 2:
         raise ValueError(f"echoes must be a 2-D array (n, 5..9), got {arr.ndim} dimension(s)")
