@@ -96,12 +96,13 @@ pub fn run(args: &MapArgs) -> Result<()> {
     let mut settings_only = false;
     let (obstacles, base, chirp_base, pattern_base): (Vec<Obstacle>, MappingParams, ChirpSpec, _) = match &args.scene {
         Some(p) => {
+            // Parsing validated the whole scene; a file of settings only
+            // places no obstacles.
             let ((scene, synth), declares) = load_scene_declaring(p)?;
             settings_only = !declares;
             let (obstacles, scene) = if declares {
                 chirpmap::scene_truth(&scene).map_err(|e| anyhow!("{}: {e}", p.display()))?
             } else {
-                chirpmap::scene_parameters(&scene).map_err(|e| anyhow!("{}: {e}", p.display()))?;
                 (Vec::new(), scene)
             };
             let chirp = ChirpSpec::from_scene(&scene);

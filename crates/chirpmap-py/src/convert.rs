@@ -200,11 +200,14 @@ fn check_scene_size(text: &str, what: &str) -> Result<(), String> {
 
 /// Algorithm 1's parameters (and the mapper) from the Python keywords; the
 /// evidence mapper's table comes as JSON of a dict (unknown keys refused).
+/// Algorithm 1's thresholds default to [`MappingParams::default`]'s and are
+/// refused with the evidence mapper, which would ignore them (as
+/// `chirpmap map` refuses its flags).
 pub fn mapping_params(
     cell: f64,
-    keep_top: f64,
-    min_of_max: f64,
-    peak_radius: f64,
+    keep_top: Option<f64>,
+    min_of_max: Option<f64>,
+    peak_radius: Option<f64>,
     ellipse_points: u32,
     mapper: &str,
     evidence_json: Option<&str>,
@@ -219,6 +222,21 @@ pub fn mapping_params(
             ));
         }
     };
+    let paper_only = [("keep_top", keep_top), ("min_of_max", min_of_max), ("peak_radius", peak_radius)];
+    if mapper == MapperKind::Evidence
+        && let Some((name, _)) = paper_only.iter().find(|(_, v)| v.is_some())
+    {
+        return Err(format!(
+            "{name}: applies to mapper='paper' only; the evidence mapper's highlights are set in evidence= \
+             (peak_radius_m, highlight_min_logodds)"
+        ));
+    }
+    let paper = MappingParams::default();
+    let (keep_top, min_of_max, peak_radius) = (
+        keep_top.unwrap_or(paper.keep_top),
+        min_of_max.unwrap_or(paper.min_of_max),
+        peak_radius.unwrap_or(paper.peak_radius),
+    );
     let evidence: EvidenceParams = match evidence_json {
         None => EvidenceParams::default(),
         Some(j) => serde_json::from_str(j).map_err(|e| format!("evidence: {e}"))?,
@@ -296,14 +314,18 @@ mod tests {
 
     #[test]
     fn mapping_params_refuse_bad_values() {
-        assert!(mapping_params(0.1, 0.1, 0.01, 5.0, 0, "paper", None).is_ok());
-        let err = mapping_params(0.1, 0.1, 0.01, 5.0, 0, "nope", None).expect_err("mapper");
+        assert!(mapping_params(0.1, None, None, None, 0, "paper", None).is_ok());
+        let err = mapping_params(0.1, None, None, None, 0, "nope", None).expect_err("mapper");
         assert!(err.contains("not a mapper"), "{err}");
-        let err = mapping_params(-1.0, 0.1, 0.01, 5.0, 0, "paper", None).expect_err("cell");
+        let err = mapping_params(-1.0, None, None, None, 0, "paper", None).expect_err("cell");
         assert!(err.contains("cell"), "{err}");
-        let err = mapping_params(0.1, 0.1, 0.01, 5.0, 0, "evidence", Some(r#"{"angle_bins": 2}"#)).expect_err("bins");
+        let err = mapping_params(0.1, None, None, None, 0, "evidence", Some(r#"{"angle_bins": 2}"#)).expect_err("bins");
         assert!(err.contains("angle_bins"), "{err}");
-        let err = mapping_params(0.1, 0.1, 0.01, 5.0, 0, "evidence", Some(r#"{"bogus": 2}"#)).expect_err("unknown");
+        let err = mapping_params(0.1, None, None, None, 0, "evidence", Some(r#"{"bogus": 2}"#)).expect_err("unknown");
         assert!(err.contains("bogus"), "{err}");
+        let err = mapping_params(0.1, None, None, Some(3.0), 0, "evidence", None).expect_err("paper only");
+        assert!(err.starts_with("peak_radius: applies to mapper='paper' only"), "{err}");
+        let p = mapping_params(0.1, None, Some(0.05), None, 0, "paper", None).expect("paper");
+        assert_eq!((p.keep_top, p.min_of_max, p.peak_radius), (MappingParams::default().keep_top, 0.05, 5.0));
     }
 }

@@ -75,9 +75,7 @@ pub use rooms::{
     RoomPrepared, RoomReport, StreamedRoom, calibration_response, calibration_response_rir, prepare_room, rir_echoes,
     rir_max_delta_d, room_echoes,
 };
-pub use simulate::{
-    Simulation, default_listener_path, parse_scene, scene_parameters, scene_truth, simulate, validate_scene,
-};
+pub use simulate::{Simulation, default_listener_path, parse_scene, scene_truth, simulate, validate_scene};
 
 /// Renders what every listener of `scene` records: the chirp train, the
 /// direct path, specular reflections and noise, with exact per-sample

@@ -54,16 +54,6 @@ pub fn scene_truth(scene: &Scene) -> Result<(Vec<Obstacle>, Scene)> {
     Ok((resolved.obstacles, resolved.scene))
 }
 
-/// Checks the settings of a scene used only for them (`[mapping]`,
-/// `[chirp]`): `map --scene` with a file of settings only, whose default
-/// random obstacles would belong to no recording, so none are placed (the tables as such were
-/// checked when the file was parsed, [`parse_scene`]).
-pub fn scene_parameters(scene: &Scene) -> Result<()> {
-    scene.chirp.build()?;
-    scene.mapping.validate()?;
-    Ok(())
-}
-
 /// Simulates `scene` (its `seed` and `run_index` fix the run bit for bit),
 /// maps the echoes on the scene's world with its `[mapping]`, and scores
 /// the highlights against the scene's obstacles.

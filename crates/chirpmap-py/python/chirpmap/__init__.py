@@ -276,17 +276,6 @@ def map_echoes(
         ValueError: bad echoes (the message names the row and column) or
             parameters, or a grid too large for the memory cap.
     """
-    paper_only = {"keep_top": keep_top, "min_of_max": min_of_max, "peak_radius": peak_radius}
-    if str(mapper) == "evidence":
-        given = [name for name, v in paper_only.items() if v is not None]
-        if given:
-            raise ValueError(
-                f"{given[0]}: applies to mapper='paper' only; the evidence mapper's highlights are set in "
-                "evidence= (peak_radius_m, highlight_min_logodds)"
-            )
-    keep_top = 0.1 if keep_top is None else keep_top
-    min_of_max = 0.01 if min_of_max is None else min_of_max
-    peak_radius = 5.0 if peak_radius is None else peak_radius
     arr = np.ascontiguousarray(echoes, dtype=np.float64)
     if arr.ndim != 2:
         raise ValueError(f"echoes must be a 2-D array (n, 5..9), got {arr.ndim} dimension(s)")
@@ -319,9 +308,9 @@ def map_echoes(
         sig,
         b,
         _float("cell", cell),
-        _float("keep_top", keep_top),
-        _float("min_of_max", min_of_max),
-        _float("peak_radius", peak_radius),
+        None if keep_top is None else _float("keep_top", keep_top),
+        None if min_of_max is None else _float("min_of_max", min_of_max),
+        None if peak_radius is None else _float("peak_radius", peak_radius),
         ellipse_points,
         str(mapper),
         ev,
