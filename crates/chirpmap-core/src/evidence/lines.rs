@@ -206,17 +206,21 @@ fn median(v: &mut [f64]) -> f64 {
 /// Densest offset among the sorted tangent offsets `vals`: the window of
 /// `width` (2τ, τ = kσ with σ the set's median) holding the most offsets,
 /// and its mean. Returns `(count, mean)`.
+///
+/// The window never shrinks (Kadane-style): at each offset it either grows
+/// by one, when the offset is within `width` of the window's first, or
+/// slides by one. Its size is then the most offsets any window ending there
+/// holds, and the window recorded at its last growth is the first window of
+/// the final size, as a search of every window would find; with one step
+/// per offset instead of a loop, the branch is a conditional move.
 fn densest(vals: &[f64], width: f64) -> (usize, f64) {
-    let (mut best, mut best_lo, mut lo) = (0usize, 0usize, 0usize);
+    let (mut best_lo, mut lo) = (0usize, 0usize);
     for hi in 0..vals.len() {
-        while vals[hi] - vals[lo] > width {
-            lo += 1;
-        }
-        if hi + 1 - lo > best {
-            best = hi + 1 - lo;
-            best_lo = lo;
-        }
+        let slides = vals[hi] - vals[lo] > width;
+        best_lo = if slides { best_lo } else { lo };
+        lo += usize::from(slides);
     }
+    let best = vals.len() - lo;
     let mean = vals[best_lo..best_lo + best].iter().sum::<f64>() / best.max(1) as f64;
     (best, mean)
 }
@@ -1572,20 +1576,58 @@ mod tests {
             proptest::prop_assert!((wide - oracle).abs() <= 1e-12 * oracle.max(1.0), "{wide} vs {oracle}");
         }
 
-        /// Sorting with a move budget and the merge sort's finish gives the
-        /// unbudgeted insertion sort's order, ties included (few distinct
-        /// values, so many), whatever the budget.
+        /// The one-step window finds what a search of every window finds:
+        /// the most offsets within `width` of one another and the mean of
+        /// the first such window (oracle: each start's count by scan, ties
+        /// to the earliest; values on a coarse lattice, so ties and windows
+        /// exactly `width` wide are common).
         #[test]
-        fn budgeted_sort_is_the_insertion_sort(
+        fn densest_is_the_first_fullest_window(
+            mut keys in proptest::collection::vec(0u8..40, 0..60),
+            width_steps in 0u8..12,
+        ) {
+            keys.sort_unstable();
+            let vals: Vec<f64> = keys.iter().map(|&k| f64::from(k) * 0.125 - 1.0).collect();
+            let width = f64::from(width_steps) * 0.125;
+            let (mut best, mut best_lo) = (0usize, 0usize);
+            for lo in 0..vals.len() {
+                let count = vals[lo..].iter().take_while(|&&v| v - vals[lo] <= width).count();
+                if count > best {
+                    (best, best_lo) = (count, lo);
+                }
+            }
+            let mean = vals[best_lo..best_lo + best].iter().sum::<f64>() / best.max(1) as f64;
+            let (got, got_mean) = densest(&vals, width);
+            proptest::prop_assert_eq!(got, best);
+            proptest::prop_assert_eq!(got_mean.to_bits(), mean.to_bits());
+        }
+
+        /// Sorting with a move budget and the merge sort's finish gives a
+        /// stable sort by `total_cmp` (the oracle: the standard library's),
+        /// ties included (few distinct values, so many), whatever the
+        /// budget; with and without −0 and NaN among the values (`+0` and
+        /// `−0`, or NaNs of either sign, are distinct keys there).
+        #[test]
+        fn budgeted_sort_is_the_stable_total_order(
             keys in proptest::collection::vec(0u8..6, 0..80),
+            odd in 0u8..3,
             budget in 0usize..400,
         ) {
-            let raw: Vec<f64> = keys.iter().map(|&k| f64::from(k) * 0.25 - 0.5).collect();
-            let (mut want_v, mut want_o) = (raw.clone(), (0..raw.len()).collect::<Vec<_>>());
-            proptest::prop_assert!(insertion_sort_within(&mut want_v, &mut want_o, usize::MAX));
+            let odd_value = |k: u8| match (odd, k) {
+                (1, 0) => -0.0,
+                (2, 0) => f64::NAN,
+                (2, 1) => -f64::NAN,
+                _ => f64::from(k) * 0.25 - 0.5,
+            };
+            let raw: Vec<f64> = keys.iter().map(|&k| odd_value(k)).collect();
+            let mut want: Vec<(f64, usize)> = raw.iter().copied().zip(0..).collect();
+            want.sort_by(|a, b| a.0.total_cmp(&b.0));
             let mut got = SortedOffsets { vals: raw.clone(), order: (0..raw.len()).collect(), ..SortedOffsets::default() };
             got.finish_sort(budget);
-            proptest::prop_assert_eq!(&got.vals, &want_v);
+            let got_v: Vec<u64> = got.vals.iter().map(|v| v.to_bits()).collect();
+            let want_v: Vec<u64> = want.iter().map(|w| w.0.to_bits()).collect();
+            let want_o: Vec<usize> = want.iter().map(|w| w.1).collect();
+            proptest::prop_assert_eq!(got_v, want_v);
             proptest::prop_assert_eq!(&got.order, &want_o);
         }
     }
