@@ -28,7 +28,7 @@ import chirpmap
 # %%
 run = chirpmap.simulate(seed=3)
 print(run)
-print("first echoes (source_x, source_y, listener_x, listener_y, delta_d, weight, t, listener):")
+print("first echoes (" + ", ".join(chirpmap.ECHO_COLUMNS) + "):")
 print(run.echoes[:3])
 
 # %% [markdown]

@@ -231,6 +231,13 @@ pub fn mapping_params(
              (peak_radius_m, highlight_min_logodds)"
         ));
     }
+    // The other mapper's settings are refused too, rather than ignored.
+    if mapper == MapperKind::Evidence && ellipse_points != 0 {
+        return Err("ellipse_points: applies to mapper='paper' only (the evidence mapper draws no ellipses)".into());
+    }
+    if mapper == MapperKind::Paper && evidence_json.is_some() {
+        return Err("evidence: applies to mapper='evidence' only; pass mapper='evidence' to use it".into());
+    }
     let paper = MappingParams::default();
     let (keep_top, min_of_max, peak_radius) = (
         keep_top.unwrap_or(paper.keep_top),
@@ -325,6 +332,10 @@ mod tests {
         assert!(err.contains("bogus"), "{err}");
         let err = mapping_params(0.1, None, None, Some(3.0), 0, "evidence", None).expect_err("paper only");
         assert!(err.starts_with("peak_radius: applies to mapper='paper' only"), "{err}");
+        let err = mapping_params(0.1, None, None, None, 64, "evidence", None).expect_err("paper only");
+        assert!(err.starts_with("ellipse_points: applies to mapper='paper' only"), "{err}");
+        let err = mapping_params(0.1, None, None, None, 0, "paper", Some("{}")).expect_err("evidence only");
+        assert!(err.starts_with("evidence: applies to mapper='evidence' only"), "{err}");
         let p = mapping_params(0.1, None, Some(0.05), None, 0, "paper", None).expect("paper");
         assert_eq!((p.keep_top, p.min_of_max, p.peak_radius), (MappingParams::default().keep_top, 0.05, 5.0));
     }

@@ -43,11 +43,58 @@ const SIGNAL_POLL: std::time::Duration = std::time::Duration::from_millis(50);
 /// call waits for them before it starts ([`wait_for_abandoned`]), so
 /// interrupted work never piles up: each runs on all cores (rayon) and
 /// holds its call's memory, which the caps bound per call, not per process.
-static ABANDONED: std::sync::Mutex<Vec<std::thread::JoinHandle<()>>> = std::sync::Mutex::new(Vec::new());
+/// Each thread is listed with the process that started it: a forked child
+/// (`multiprocessing`'s default on Linux) inherits the list but not the
+/// threads, which would never finish there.
+static ABANDONED: std::sync::Mutex<Vec<(u32, std::thread::JoinHandle<()>)>> = std::sync::Mutex::new(Vec::new());
 
-fn abandoned() -> std::sync::MutexGuard<'static, Vec<std::thread::JoinHandle<()>>> {
+fn abandoned() -> std::sync::MutexGuard<'static, Vec<(u32, std::thread::JoinHandle<()>)>> {
     // The list stays valid whatever a holder did: a poisoned lock is taken as is.
-    ABANDONED.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+    let mut list = ABANDONED.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+    let me = std::process::id();
+    if list.iter().any(|(pid, _)| *pid != me) {
+        // A parent's threads: their handles are forgotten, not dropped
+        // (dropping detaches a thread this process does not have).
+        for entry in std::mem::take(&mut *list) {
+            if entry.0 == me {
+                list.push(entry);
+            } else {
+                std::mem::forget(entry);
+            }
+        }
+    }
+    list
+}
+
+/// This process's rayon pool, on which every call's work runs. Not rayon's
+/// global pool: a forked child inherits a pool's memory but none of its
+/// threads, so its first parallel step would wait forever (a
+/// `multiprocessing.Pool` of seeds hung, whether or not the parent had
+/// called chirpmap, since the global pool was built at import). A child
+/// builds its own on its first call.
+static POOL: std::sync::Mutex<Option<(u32, std::sync::Arc<rayon::ThreadPool>)>> = std::sync::Mutex::new(None);
+
+fn pool() -> Result<std::sync::Arc<rayon::ThreadPool>, String> {
+    let mut slot = POOL.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+    let me = std::process::id();
+    match slot.take() {
+        Some((pid, pool)) if pid == me => {
+            *slot = Some((pid, pool.clone()));
+            return Ok(pool);
+        }
+        // A parent's pool: forgotten, as its threads are not here to stop.
+        Some(parent) => std::mem::forget(parent),
+        None => {}
+    }
+    // rayon's threads named as such: unnamed, they would take the name of
+    // the thread that starts the pool, a call's worker.
+    let pool = rayon::ThreadPoolBuilder::new()
+        .thread_name(|i| format!("chirpmap-rayon-{i}"))
+        .build()
+        .map(std::sync::Arc::new)
+        .map_err(|e| format!("cannot start chirpmap's threads: {e}"))?;
+    *slot = Some((me, pool.clone()));
+    Ok(pool)
 }
 
 /// Waits, interruptibly, until the work of every interrupted call has
@@ -57,7 +104,7 @@ fn wait_for_abandoned(py: Python<'_>) -> PyResult<()> {
     loop {
         let running = {
             let mut list = abandoned();
-            list.retain(|h| !h.is_finished());
+            list.retain(|(_, h)| !h.is_finished());
             !list.is_empty()
         };
         if !running {
@@ -91,12 +138,13 @@ fn interruptible<T: Send + 'static>(
 ) -> PyResult<T> {
     use std::sync::mpsc::RecvTimeoutError;
     wait_for_abandoned(py)?;
+    let pool = pool().map_err(PyRuntimeError::new_err)?;
     let (tx, mut rx) = std::sync::mpsc::sync_channel(1);
     let worker = std::thread::Builder::new()
         .name(WORKER_NAME.into())
         .spawn(move || {
             // The receiver is gone when the call was interrupted.
-            let _ = tx.send(work());
+            let _ = tx.send(pool.install(work));
         })
         .map_err(|e| PyRuntimeError::new_err(format!("cannot start a thread for the computation: {e}")))?;
     loop {
@@ -110,7 +158,7 @@ fn interruptible<T: Send + 'static>(
             Ok(result) => return result.map_err(value_error),
             Err(RecvTimeoutError::Timeout) => {
                 if let Err(e) = py.check_signals() {
-                    abandoned().push(worker);
+                    abandoned().push((std::process::id(), worker));
                     return Err(e);
                 }
             }
@@ -263,6 +311,11 @@ fn map_echoes<'py>(
     let params =
         convert::mapping_params(cell, keep_top, min_of_max, peak_radius, ellipse_points, mapper, evidence_json)
             .map_err(value_error)?;
+    if sigma.is_some() && params.mapper == chirpmap::MapperKind::Paper {
+        return Err(value_error(
+            "sigma: applies to mapper='evidence' only (Algorithm 1 draws every echo one cell wide)",
+        ));
+    }
     // The rows become echoes here (detached, reading numpy's buffer in
     // place); the worker gets the echoes, not a copy of the rows.
     let echoes = py.detach(|| convert::echoes_from_rows(data, cols, sigma)).map_err(value_error)?;
@@ -382,11 +435,16 @@ fn range(
     })
 }
 
+/// What [`echoes_from_recording`] returns: the echoes' table, the chirps
+/// detected, those skipped for want of a pose, and each echo's Δḋ (m/s).
+type RecordingTuple<'py> = (Bound<'py, PyAny>, usize, usize, Bound<'py, PyArray1<f64>>);
+
 /// Echoes of a moving listener's recording (`chirpmap map --wav`): the
 /// echoes as an `(n, 8)` or `(n, 9)` table (with `sigma_m`), the chirps
-/// detected and those skipped for want of a pose.
+/// detected, those skipped for want of a pose, and the path-difference
+/// rates (NaN where the method gives none).
 #[pyfunction]
-#[pyo3(signature = (samples, sample_rate, poses, speaker, method, period_s, frame_s, listener, f_start, f_end, duration, speed_of_sound, max_delta_d, pattern=None, echoes_per_frame=None))]
+#[pyo3(signature = (samples, sample_rate, poses, speaker, method, period_s, frame_s, listener, f_start, f_end, duration, speed_of_sound, max_delta_d, pattern=None, echoes_per_frame=None, sweep=None))]
 #[allow(clippy::too_many_arguments)]
 fn echoes_from_recording<'py>(
     py: Python<'py>,
@@ -405,7 +463,9 @@ fn echoes_from_recording<'py>(
     max_delta_d: Option<f64>,
     pattern: Option<&str>,
     echoes_per_frame: Option<usize>,
-) -> PyResult<(Bound<'py, PyAny>, usize, usize)> {
+    sweep: Option<&str>,
+) -> PyResult<RecordingTuple<'py>> {
+    let kind = sweep.map(rooms::parse_sweep).transpose().map_err(value_error)?.unwrap_or_default();
     let method: chirpmap::audio::doppler::WavMethod =
         method.parse().map_err(|e| value_error(format!("method: {e}")))?;
     let pattern: Option<chirpmap::audio::synth::ChirpPattern> =
@@ -423,7 +483,7 @@ fn echoes_from_recording<'py>(
         duration_s: duration,
         speed_of_sound_mps: speed_of_sound,
         max_delta_d_m: max_delta_d,
-        kind: chirpmap::core::scene::SweepKind::Linear,
+        kind,
     };
     let opts = chirpmap::audio::doppler::MovingOptions {
         method,
@@ -439,11 +499,18 @@ fn echoes_from_recording<'py>(
     let x = x.to_vec();
     let got = interruptible(py, move || {
         let track = chirpmap::PoseTrack::new(rows).map_err(|e| format!("poses: {}", error_text(&e)))?;
-        let prep = chirpmap::prepare(x, sample_rate, &chirp).map_err(|e| error_text(&e))?;
+        // As `map --wav`: the doppler method ranges any sweep through its
+        // inverse, and the prepared channel does not depend on the shape
+        // (only its template, unused there); the others need a linear one.
+        let linear = ChirpSpec { kind: chirpmap::core::scene::SweepKind::Linear, ..chirp };
+        let for_prep = if method == chirpmap::audio::doppler::WavMethod::Doppler { &linear } else { &chirp };
+        let prep = chirpmap::prepare(x, sample_rate, for_prep).map_err(|e| error_text(&e))?;
         chirpmap::RecordingEchoes::from_moving(&prep, &chirp, &track, &opts).map_err(|e| error_text(&e))
     })?;
     let (rows, cols) = convert::echoes_to_rows(&got.echoes);
-    Ok((table(py, rows, cols)?, got.chirps, got.chirps_without_pose))
+    // NaN where the method gives no rate (echoes.csv leaves the cell empty).
+    let rates: Vec<f64> = got.delta_d_rates_mps.iter().map(|r| r.unwrap_or(f64::NAN)).collect();
+    Ok((table(py, rows, cols)?, got.chirps, got.chirps_without_pose, rates.into_pyarray(py)))
 }
 
 /// Every reflection of every chirp (`chirpmap range --echoes`, issue 10):
@@ -562,9 +629,6 @@ fn room_echo_defaults(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
 /// package, which document their arguments and results.
 #[pymodule]
 fn _chirpmap(m: &Bound<'_, PyModule>) -> PyResult<()> {
-    // rayon's threads named as such: unnamed, they would take the name of the
-    // thread that starts the pool, a call's worker.
-    let _ = rayon::ThreadPoolBuilder::new().thread_name(|i| format!("chirpmap-rayon-{i}")).build_global();
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add_function(wrap_pyfunction!(simulate, m)?)?;
     m.add_function(wrap_pyfunction!(map_echoes, m)?)?;

@@ -54,7 +54,12 @@ def test_bad_echoes_raise_value_error(rows, message):
         ({"mapper": "evidence", "evidence": {"angle_bins": 2}}, "evidence.angle_bins"),
         ({"mapper": "evidence", "evidence": {"no_such_key": 2}}, "no_such_key"),
         ({"sigma": -1.0, "mapper": "evidence"}, "`sigma_m` = -1 must be > 0"),
-        ({"sigma": [0.1, 0.2, 0.3]}, "could not be broadcast"),
+        ({"sigma": [0.1, 0.2, 0.3], "mapper": "evidence"}, "sigma: expected one number or 2 values (one per echo), got shape (3,)"),
+        ({"sigma": [[0.1], [0.2]], "mapper": "evidence"}, "got shape (2, 1)"),
+        # The other mapper's settings, refused rather than ignored.
+        ({"sigma": 0.1}, "sigma: applies to mapper='evidence' only"),
+        ({"evidence": {"min_support": 3}}, "evidence: applies to mapper='evidence' only"),
+        ({"mapper": "evidence", "ellipse_points": 64}, "ellipse_points: applies to mapper='paper' only"),
         # Algorithm 1's thresholds, which the evidence mapper would ignore.
         ({"mapper": "evidence", "peak_radius": 3.0}, "peak_radius: applies to mapper='paper' only"),
         ({"mapper": "evidence", "keep_top": 0.2}, "keep_top: applies to mapper='paper' only"),
@@ -322,3 +327,94 @@ def test_ctrl_c_interrupts_a_call():
     with pytest.warns(RuntimeWarning, match="interrupted call"):
         again = chirpmap.map_echoes(echoes, bounds=(-40, -40, 40, 40))
     assert np.array_equal(again.grid, expected.grid)
+
+
+def _forked_work(seed: int) -> tuple:
+    """Work for a forked child: rayon's parallel steps in simulate and the
+    evidence mapper (run in `test_calls_work_in_forked_children`)."""
+    run = chirpmap.simulate({"particles": {"per_tick": 360}}, seed=seed)
+    mapped = chirpmap.map_echoes(run.echoes, mapper="evidence")
+    return len(run.echoes), mapped.grid.tobytes()
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="fork is POSIX only")
+def test_calls_work_in_forked_children():
+    """multiprocessing's default on Linux forks: a child inherits the
+    parent's thread pool's memory but not its threads. With rayon's global
+    pool, built at import, every parallel call in a child waited forever.
+    Children now build their own pool; their results are the parent's."""
+    import multiprocessing
+
+    expected = [_forked_work(s) for s in (1, 2)]
+    with multiprocessing.get_context("fork").Pool(2) as workers:
+        got = workers.map_async(_forked_work, [1, 2]).get(timeout=120)
+    assert got == expected
+
+
+def test_python_audit_findings(tmp_path):
+    """Session 26's audit of the package as a researcher uses it: numpy
+    values in dicts, (channels, frames) arrays, a channel of mono samples,
+    hydra-style scene paths, strings for points, and compare flags."""
+    # numpy scalars and arrays in a scene or evidence dict are numbers.
+    a = chirpmap.simulate({"seed": np.int64(3), "particles": {"per_tick": np.int32(360)}})
+    b = chirpmap.simulate({"seed": 3, "particles": {"per_tick": 360}})
+    assert np.array_equal(a.grid, b.grid)
+    rows = np.array([GOOD, GOOD])
+    m1 = chirpmap.map_echoes(rows, mapper="evidence", evidence={"min_support": np.int64(4)})
+    m2 = chirpmap.map_echoes(rows, mapper="evidence", evidence={"min_support": 4})
+    assert np.array_equal(m1.grid, m2.grid)
+    with pytest.raises(ValueError, match=r"scene dict: a value of type object is not a number"):
+        chirpmap.simulate({"seed": object()})
+    rec, rate, poses = chirpmap.synth({"synth": {"chirps": 2}})
+    with pytest.raises(ValueError, match=r"samples: shape \(1, \d+\) has fewer samples than channels; .*samples\.T"):
+        chirpmap.range(rec.T, rate, (-3, 10), (0, 0))
+    with pytest.raises(ValueError, match=r"channel: 7 is not a channel of 1-D samples"):
+        chirpmap.range(rec[:, 0], rate, (-3, 10), (0, 0), channel=7)
+    with pytest.raises(TypeError, match=r"speaker must be a pair of numbers \(x, y\), not a string"):
+        chirpmap.range(rec[:, 0], rate, "00", (0, 0))
+    with pytest.raises(TypeError, match=r"compare must be True or False, not str"):
+        chirpmap.range(rec[:, 0], rate, (-3, 10), (0, 0), compare="no")
+    # The CLI's default method.
+    assert chirpmap.range(rec[:, 0], rate, (-3, 10), (0, 0))["method"] == "gap"
+    # A missing scene file named with `=` is a missing file, not bad TOML.
+    with pytest.raises(ValueError) as e:
+        chirpmap.simulate(str(tmp_path / "runs" / "a=1.toml"))
+    assert "a=1.toml" in str(e.value) and "invalid parameter scene" not in str(e.value)
+    # Results compare by identity (their arrays have no single truth value) and hash.
+    assert a == a and a != b and len({a, b}) == 2
+
+
+def test_read_echoes_by_column_name(tmp_path):
+    """echoes.csv read by its header's names: a `map --wav --method doppler`
+    file's `delta_d_rate` is not `sigma_m` (np.loadtxt read it as such, and
+    map_echoes gave another grid than `chirpmap map --echoes`)."""
+    doppler = tmp_path / "echoes.csv"
+    doppler.write_text(
+        "source_x,source_y,listener_x,listener_y,delta_d,weight,t,listener,delta_d_rate\n"
+        "0,0,1,1,2.5,1,0.01,0,0.41\n"
+        "0,0,1.1,1,2.4,1,0.02,0,\n"
+    )
+    got = chirpmap.read_echoes(doppler)
+    assert got.shape == (2, 9)
+    assert np.array_equal(got[:, :8], [[0, 0, 1, 1, 2.5, 1, 0.01, 0], [0, 0, 1.1, 1, 2.4, 1, 0.02, 0]])
+    assert np.isnan(got[:, 8]).all()
+    positional = np.loadtxt(doppler, delimiter=",", skiprows=1, max_rows=1, ndmin=2)
+    assert positional[0, 8] == 0.41  # what a positional reader takes for sigma_m
+    # Columns in any order, empty cells and absent columns take defaults.
+    shuffled = tmp_path / "shuffled.csv"
+    shuffled.write_text("sigma_m,delta_d,listener_y,listener_x,source_y,source_x,extra\n0.02,2.5,1,1,0,0,x\n,2.4,1,1.1,0,0,y\n")
+    got = chirpmap.read_echoes(str(shuffled))
+    assert np.array_equal(got[0], [0, 0, 1, 1, 2.5, 1, 0, 0, 0.02])
+    assert np.array_equal(got[1, :8], [0, 0, 1.1, 1, 2.4, 1, 0, 0]) and np.isnan(got[1, 8])
+    for text, message in [
+        ("source_x,source_y,listener_x,listener_y\n0,0,1,1\n", r"bad.csv:1: missing column `delta_d`"),
+        ("source_x,source_y,listener_x,listener_y,delta_d\n0,0,1,1,two\n", r"bad.csv:2: `delta_d` = 'two' is not a number"),
+        ("source_x,source_y,listener_x,listener_y,delta_d\n0,0,1,1\n", r"bad.csv:2: 4 fields where the header has 5"),
+        ("source_x,source_y,listener_x,listener_y,delta_d\n0,0,1,1,\n", r"bad.csv:2: missing value for `delta_d`"),
+        ("delta_d,delta_d\n1,2\n", r"bad.csv:1: column `delta_d` appears twice"),
+        ("", r"bad.csv:1: no header"),
+    ]:
+        bad = tmp_path / "bad.csv"
+        bad.write_text(text)
+        with pytest.raises(ValueError, match=message):
+            chirpmap.read_echoes(bad)

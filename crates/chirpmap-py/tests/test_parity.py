@@ -225,7 +225,9 @@ def test_synth_matches_cli_wav_and_poses(cli, tmp_path):
 @pytest.mark.parametrize(
     "cli_args, kwargs",
     [
-        (["--method", "matched"], {}),
+        # Both defaults (the paper's gap method).
+        ([], {}),
+        (["--method", "matched"], {"method": "matched"}),
         (["--method", "gap", "--wall-normal", "0,-1"], {"method": "gap", "wall_normal": (0, -1)}),
         (["--method", "dechirp", "--compare", "--max-delta-d", "30"], {"method": "dechirp", "compare": True, "max_delta_d": 30.0}),
     ],
@@ -275,28 +277,41 @@ bits = "f32"
 """
 
 
-@pytest.mark.parametrize("method", ["gap", "dechirp", "doppler"])
-def test_echoes_from_recording_match_cli_map_wav(cli, tmp_path, method):
+@pytest.mark.parametrize(
+    "method, sweep",
+    [("gap", "linear"), ("dechirp", "linear"), ("doppler", "linear"), ("doppler", "hyperbolic")],
+)
+def test_echoes_from_recording_match_cli_map_wav(cli, tmp_path, method, sweep):
     scene = tmp_path / "moving.toml"
-    scene.write_text(MOVING_WALL_SCENE)
+    scene.write_text(MOVING_WALL_SCENE.replace("[chirp]\n", f'[chirp]\nkind = "{sweep}"\n'))
     wav, poses_csv = tmp_path / "rec.wav", tmp_path / "poses.csv"
     run_cli(cli, "synth", scene, "--out", wav, "--poses", poses_csv)
     run_cli(
         cli, "map", "--wav", wav, "--poses", poses_csv, "--speaker", "0,0", "--duration", "0.25",
-        "--method", method, "--out", tmp_path / "map",
+        "--method", method, "--sweep", sweep, "--out", tmp_path / "map",
     )
     # The CLI read the WAV and the poses file; so does Python.
     samples = read_wav_f32(wav)
     poses = read_table(poses_csv, ["t", "x", "y"])
-    got = chirpmap.echoes_from_recording(samples, 48000, poses, (0, 0), method=method, duration=0.25)
+    got = chirpmap.echoes_from_recording(samples, 48000, poses, (0, 0), method=method, duration=0.25, sweep=sweep)
     assert got.chirps == 12 and got.chirps_without_pose == 0 and len(got.echoes) > 0
     header = (tmp_path / "map" / "echoes.csv").read_text().splitlines()[0].split(",")
     want = read_table(tmp_path / "map" / "echoes.csv", header)
     if method == "doppler":
         # The CLI also writes each echo's delta_d_rate, its track's Doppler fit.
         assert header[-1] == "delta_d_rate"
+        assert np.array_equal(got.delta_d_rate, want[:, -1], equal_nan=True)
+        assert not np.isnan(got.delta_d_rate).all()
         want = want[:, :-1]
+    else:
+        assert np.isnan(got.delta_d_rate).all() and len(got.delta_d_rate) == len(got.echoes)
     assert got.echoes.shape == want.shape
     assert np.array_equal(got.echoes, want, equal_nan=True)
-    # Mapped with the defaults, the CLI's map.
+    # Mapped with the defaults, the CLI's map; the file read back by column
+    # name maps the same (a positional reader took delta_d_rate for sigma_m).
     check_map_files(tmp_path / "map", chirpmap.map_echoes(got.echoes))
+    read = chirpmap.read_echoes(tmp_path / "map" / "echoes.csv")
+    check_map_files(tmp_path / "map", chirpmap.map_echoes(read))
+    for mapper in ("paper", "evidence"):
+        a, b = chirpmap.map_echoes(read, mapper=mapper), chirpmap.map_echoes(got.echoes, mapper=mapper)
+        assert np.array_equal(a.grid, b.grid) and a.surfaces == b.surfaces

@@ -16,7 +16,11 @@ bit, for the same inputs:
 >>> plt.imshow(run.grid, extent=run.extent, origin="lower")
 
 Functions: :func:`simulate`, :func:`map_echoes`, :func:`synth`, :func:`range`,
-:func:`echoes_from_recording`, :func:`room_echoes`.
+:func:`echoes_from_recording`, :func:`room_echoes`, :func:`read_echoes`.
+Results compare by identity (their arrays have no single truth value);
+compare their fields with ``np.array_equal``. Calls work in forked
+children (``multiprocessing``'s default on Linux): each process runs its
+own threads.
 Arrays come back as numpy arrays that own Rust's buffers (no copies); every
 long step runs with the GIL released, and Ctrl-C interrupts it within 50 ms
 (the interrupted work finishes in the background and is dropped; the next
@@ -48,6 +52,7 @@ __all__ = [
     "echoes_from_recording",
     "map_echoes",
     "range",
+    "read_echoes",
     "room_echoes",
     "simulate",
     "synth",
@@ -71,7 +76,7 @@ ECHO_COLUMNS: Tuple[str, ...] = (
 SceneLike = Union[None, str, "os.PathLike[str]", Dict[str, Any]]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class MapResult:
     """A finished map.
 
@@ -113,7 +118,7 @@ class MapResult:
         )
 
 
-@dataclass(frozen=True, repr=False)
+@dataclass(frozen=True, repr=False, eq=False)
 class Simulation(MapResult):
     """One simulated run (paper §II.B): echoes, their map and its scores.
 
@@ -164,13 +169,23 @@ def _float(name: str, value: Any) -> float:
         raise TypeError(f"{name} must be a number: {e}") from None
 
 
+def _json_default(value: Any) -> Any:
+    """numpy's scalars and arrays in a scene or ``evidence`` dict, as the
+    Python numbers and lists they hold (``json`` knows neither)."""
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    raise TypeError(f"a value of type {type(value).__name__} is not a number, string, list or dict")
+
+
 def _scene_source(scene: SceneLike) -> Tuple[str, str]:
     """(kind, payload) for the compiled module: how to read ``scene``."""
     if scene is None:
         return "default", ""
     if isinstance(scene, dict):
         try:
-            return "json", json.dumps(scene, allow_nan=False)
+            return "json", json.dumps(scene, allow_nan=False, default=_json_default)
         except (TypeError, ValueError) as e:
             raise ValueError(f"scene dict: {e}") from None
         except RecursionError:
@@ -181,7 +196,10 @@ def _scene_source(scene: SceneLike) -> Tuple[str, str]:
         # TOML text holds a key (`=`), a table header or a line break; a bare
         # name is a path, so a missing file is reported as one.
         if "=" in scene or "[" in scene or "\n" in scene or scene.strip() == "":
-            if os.path.isfile(scene):
+            # One line naming a .toml file is a path, `=` or `[` in it or
+            # not (hydra's run directories: runs/a=1.toml).
+            one_path = "\n" not in scene and scene.strip().lower().endswith(".toml")
+            if os.path.isfile(scene) or one_path:
                 return "path", scene
             return "toml", scene
         return "path", scene
@@ -224,6 +242,63 @@ def simulate(scene: SceneLike = None, seed: Optional[int] = None) -> Simulation:
     return Simulation(**_map_kwargs(d))
 
 
+def read_echoes(path: Union[str, "os.PathLike[str]"]) -> np.ndarray:
+    """An echoes.csv as the ``(n, 9)`` array :func:`map_echoes` takes.
+
+    Columns are found by the header's names, as ``chirpmap map --echoes``
+    reads them (docs/file-formats.md), not by position: a file from ``map
+    --wav --method doppler`` has ``delta_d_rate`` where a positional reader
+    such as ``np.loadtxt`` would take ``sigma_m``. Absent columns and empty
+    cells take their defaults (``weight`` 1, ``t`` 0, ``listener`` 0,
+    ``sigma_m`` NaN = none); other columns are left out. Values are checked
+    by :func:`map_echoes`, whose errors name the row (row ``i`` is line
+    ``i + 2`` of the file).
+
+    Raises:
+        ValueError: no header, a required column missing or given twice, a
+            row of the wrong length or a cell that is not a number (the
+            message names the file and line).
+        OSError: the file cannot be read.
+    """
+    import csv
+
+    name = os.fspath(path)
+    defaults = {"weight": 1.0, "t": 0.0, "listener": 0.0, "sigma_m": float("nan")}
+    with open(name, newline="", encoding="utf-8") as f:
+        rows = csv.reader(f)
+        header = [h.strip() for h in next(rows, [])]
+        if not header or header == [""]:
+            raise ValueError(f"{name}:1: no header (the columns are named in the first line)")
+        for k, h in enumerate(header):
+            if h and h in header[:k]:
+                raise ValueError(f"{name}:1: column `{h}` appears twice in the header")
+        idx = {h: header.index(h) for h in ECHO_COLUMNS if h in header}
+        missing = [h for h in ECHO_COLUMNS[:5] if h not in idx]
+        if missing:
+            raise ValueError(f"{name}:1: missing column `{missing[0]}` (header must include {','.join(ECHO_COLUMNS[:5])})")
+        out = []
+        for row in rows:
+            line = rows.line_num
+            if not row:
+                continue
+            if len(row) != len(header):
+                raise ValueError(f"{name}:{line}: {len(row)} fields where the header has {len(header)}")
+            values = []
+            for h in ECHO_COLUMNS:
+                cell = row[idx[h]].strip() if h in idx else ""
+                if cell == "":
+                    if h not in defaults:
+                        raise ValueError(f"{name}:{line}: missing value for `{h}`")
+                    values.append(defaults[h])
+                    continue
+                try:
+                    values.append(float(cell))
+                except ValueError:
+                    raise ValueError(f"{name}:{line}: `{h}` = {cell[:40]!r} is not a number") from None
+            out.append(values)
+    return np.array(out, dtype=np.float64).reshape(len(out), len(ECHO_COLUMNS))
+
+
 def map_echoes(
     echoes: Any,
     bounds: Optional[Sequence[float]] = None,
@@ -246,7 +321,8 @@ def map_echoes(
             echoes.csv (:data:`ECHO_COLUMNS`): ``source_x, source_y,
             listener_x, listener_y, delta_d`` then optionally ``weight``
             (default 1), ``t`` (s), ``listener`` (integer id) and ``sigma_m``
-            (m, NaN = none). Copied once, as float64.
+            (m, NaN = none). Copied once, as float64. Read a CSV with
+            :func:`read_echoes` (by column name), not by position.
         bounds: grid bounds ``(x_min, y_min, x_max, y_max)`` in m; ``None``
             covers every ellipse (snapped outward to whole cells, plus one).
         cell: grid cell side (m). Paper: 0.1.
@@ -281,9 +357,12 @@ def map_echoes(
         raise ValueError(f"echoes must be a 2-D array (n, 5..9), got {arr.ndim} dimension(s)")
     sig = None
     if sigma is not None:
-        sig = np.ascontiguousarray(
-            np.broadcast_to(np.asarray(sigma, dtype=np.float64), (arr.shape[0],))
-        )
+        sig = np.asarray(sigma, dtype=np.float64)
+        if sig.ndim > 1 or (sig.ndim == 1 and sig.shape[0] != arr.shape[0]):
+            raise ValueError(
+                f"sigma: expected one number or {arr.shape[0]} values (one per echo), got shape {sig.shape}"
+            )
+        sig = np.ascontiguousarray(np.broadcast_to(sig, (arr.shape[0],)))
     b = None
     if bounds is not None:
         if isinstance(bounds, (str, bytes)) or not hasattr(bounds, "__len__"):
@@ -296,7 +375,7 @@ def map_echoes(
         if not isinstance(evidence, dict):
             raise TypeError(f"evidence must be a dict of the evidence mapper's parameters, not {type(evidence).__name__}")
         try:
-            ev = json.dumps(evidence, allow_nan=False)
+            ev = json.dumps(evidence, allow_nan=False, default=_json_default)
         except (TypeError, ValueError) as e:
             raise ValueError(f"evidence: {e}") from None
     if isinstance(ellipse_points, bool) or not isinstance(ellipse_points, int):
@@ -349,7 +428,7 @@ def range(  # noqa: A001 - the name the issue and the CLI use
     speaker: Sequence[float],
     mic: Sequence[float],
     wall_normal: Optional[Sequence[float]] = None,
-    method: str = "matched",
+    method: str = "gap",
     f_start: float = 10000.0,
     f_end: float = 200.0,
     duration: float = 0.5,
@@ -373,7 +452,8 @@ def range(  # noqa: A001 - the name the issue and the CLI use
         mic: microphone position ``(x, y)`` (m).
         wall_normal: direction from the speaker toward the wall; adds
             ``wall_distance_median`` and ``wall_distance_ci95``.
-        method: ``"gap"`` (the paper's), ``"matched"`` or ``"dechirp"``.
+        method: ``"gap"`` (the paper's; the default, as the CLI's),
+            ``"matched"`` or ``"dechirp"``.
         f_start, f_end: chirp start and end frequency (Hz).
         duration: chirp duration T (s).
         speed_of_sound: m/s.
@@ -391,6 +471,8 @@ def range(  # noqa: A001 - the name the issue and the CLI use
     x = _channel(samples, channel)
     if method not in _METHODS:
         raise ValueError(f"method: unknown method {method!r}: use gap, matched or dechirp")
+    if not isinstance(compare, (bool, np.bool_)):
+        raise TypeError(f"compare must be True or False, not {type(compare).__name__}")
     methods = list(_METHODS) if compare else [method]
     primary = methods.index(method)
     wn = None if wall_normal is None else _point("wall_normal", wall_normal)
@@ -411,7 +493,7 @@ def range(  # noqa: A001 - the name the issue and the CLI use
     return json.loads(text)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class RecordingEchoes:
     """Echoes of a moving listener's recording.
 
@@ -421,11 +503,16 @@ class RecordingEchoes:
             method gives one: ready for :func:`map_echoes`.
         chirps: chirps detected in the recording.
         chirps_without_pose: chirps skipped because the poses do not cover them.
+        delta_d_rate: ``(n,)`` float64, each echo's rate of change of Δd
+            (m/s) as ``"doppler"`` estimates it (NaN for the other methods):
+            echoes.csv's ``delta_d_rate`` column. Not a column of ``echoes``,
+            which :func:`map_echoes` reads by position.
     """
 
     echoes: np.ndarray
     chirps: int
     chirps_without_pose: int
+    delta_d_rate: np.ndarray
 
     def __repr__(self) -> str:
         return (
@@ -450,6 +537,7 @@ def echoes_from_recording(
     channel: int = 0,
     pattern: Optional[str] = None,
     echoes_per_frame: Optional[int] = None,
+    sweep: str = "linear",
 ) -> RecordingEchoes:
     """Echoes of a moving listener's recording, for :func:`map_echoes`.
 
@@ -480,6 +568,8 @@ def echoes_from_recording(
             across its chirp with its own Doppler correction (``"doppler"``
             only); ``None``: 8 for ``"doppler"``, 1 otherwise (the first
             reflection alone, the paper's §IV), as ``map --wav``.
+        sweep: the chirps' shape, ``"linear"`` (the paper's),
+            ``"exponential"`` or ``"hyperbolic"`` (``map --wav --sweep``).
 
     Returns:
         A :class:`RecordingEchoes`.
@@ -495,7 +585,7 @@ def echoes_from_recording(
             raise TypeError(f"echoes_per_frame must be an int, not {type(echoes_per_frame).__name__}")
         if not 1 <= echoes_per_frame <= 64:
             raise ValueError(f"echoes_per_frame: must be in 1..=64, got {echoes_per_frame}")
-    echoes, chirps, skipped = _chirpmap.echoes_from_recording(
+    echoes, chirps, skipped, rates = _chirpmap.echoes_from_recording(
         x,
         float(sample_rate),
         p,
@@ -511,8 +601,9 @@ def echoes_from_recording(
         None if max_delta_d is None else float(max_delta_d),
         pattern,
         None if echoes_per_frame is None else int(echoes_per_frame),
+        str(sweep),
     )
-    return RecordingEchoes(echoes, chirps, skipped)
+    return RecordingEchoes(echoes, chirps, skipped, rates)
 
 
 #: Columns of the echoes.csv ``chirpmap range --echoes`` writes, the order of
@@ -529,7 +620,7 @@ ROOM_ECHO_COLUMNS: Tuple[str, ...] = ECHO_COLUMNS[:8] + (
 )
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class RoomEchoes:
     """Every reflection of every chirp, as ``chirpmap range --echoes`` reports it.
 
@@ -733,6 +824,8 @@ def room_echoes(
 
 def _point_2or3(name: str, p: Sequence[float]) -> Tuple[float, float, Optional[float]]:
     """`(x, y)` or `(x, y, z)`, checked as the CLI checks `X,Y[,Z]`."""
+    if isinstance(p, (str, bytes)):
+        raise TypeError(f"{name} must be numbers (x, y) or (x, y, z), not a string")
     v = [float(c) for c in p]
     if len(v) not in (2, 3):
         raise ValueError(f"{name}: expected (x, y) or (x, y, z), got {len(v)} values")
@@ -754,10 +847,19 @@ def _channel(samples: Any, channel: int) -> np.ndarray:
         # numpy would drop the imaginary part with only a warning.
         raise TypeError("samples must be real, not complex")
     if x.ndim == 2:
+        if x.shape[0] < x.shape[1]:
+            # torchaudio's and librosa's (channels, frames) layout.
+            raise ValueError(
+                f"samples: shape {x.shape} has fewer samples than channels; pass "
+                "(n_samples, n_channels), e.g. samples.T"
+            )
         if not 0 <= channel < x.shape[1]:
             raise ValueError(f"channel: {channel} is not a channel of {x.shape[1]}")
         x = x[:, channel]
-    elif x.ndim != 1:
+    elif x.ndim == 1:
+        if channel != 0:
+            raise ValueError(f"channel: {channel} is not a channel of 1-D samples (one channel, 0)")
+    else:
         raise ValueError(f"samples must be 1-D or 2-D, got {x.ndim} dimensions")
     return np.ascontiguousarray(x, dtype=np.float32)
 
@@ -768,6 +870,8 @@ _MAX_COORD_M = 1e6
 
 def _point(name: str, p: Sequence[float]) -> List[float]:
     """`(x, y)` checked as the CLI checks an `X,Y` argument."""
+    if isinstance(p, (str, bytes)):
+        raise TypeError(f"{name} must be a pair of numbers (x, y), not a string")
     v = [float(c) for c in p]
     if len(v) != 2:
         raise ValueError(f"{name}: expected (x, y), got {len(v)} values")

@@ -12,7 +12,7 @@ ECHO_COLUMNS: Tuple[str, ...]
 
 SceneLike = Union[None, str, os.PathLike[str], Dict[str, Any]]
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class MapResult:
     """A finished map: grid (ny, nx) rows = y, extent (x_min, x_max, y_min, y_max)."""
 
@@ -25,7 +25,7 @@ class MapResult:
     cells_updated: int
     mapping: Dict[str, Any]
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Simulation(MapResult):
     """One simulated run: echoes (n, 9), its map, scores and resolved scene."""
 
@@ -39,6 +39,9 @@ class Simulation(MapResult):
 
 def simulate(scene: SceneLike = None, seed: Optional[int] = None) -> Simulation:
     """Simulate a scene (particle model, paper §II.B), map it and score it."""
+
+def read_echoes(path: Union[str, os.PathLike[str]]) -> npt.NDArray[np.float64]:
+    """An echoes.csv read by column name as the (n, 9) array map_echoes takes."""
 
 def map_echoes(
     echoes: npt.ArrayLike,
@@ -65,7 +68,7 @@ def range(
     speaker: Sequence[float],
     mic: Sequence[float],
     wall_normal: Optional[Sequence[float]] = None,
-    method: str = "matched",
+    method: str = "gap",
     f_start: float = 10000.0,
     f_end: float = 200.0,
     duration: float = 0.5,
@@ -76,13 +79,14 @@ def range(
 ) -> Dict[str, Any]:
     """Range a recording (paper §IV): the keys of range's summary.json."""
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class RecordingEchoes:
     """Echoes (n, 8 or 9) of a moving listener's recording, with chirp counts."""
 
     echoes: npt.NDArray[np.float64]
     chirps: int
     chirps_without_pose: int
+    delta_d_rate: npt.NDArray[np.float64]
 
 def echoes_from_recording(
     samples: npt.ArrayLike,
@@ -100,12 +104,13 @@ def echoes_from_recording(
     channel: int = 0,
     pattern: Optional[str] = None,
     echoes_per_frame: Optional[int] = None,
+    sweep: str = "linear",
 ) -> RecordingEchoes:
     """Echoes of a moving listener's recording (chirpmap map --wav)."""
 
 ROOM_ECHO_COLUMNS: Tuple[str, ...]
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class RoomEchoes:
     """Every reflection of every chirp (chirpmap range --echoes): echoes (n, 8) for the map, and per echo
     chirp, rank, path_delta_m, strength_db, plane; the chirps' onsets, clusters, echogram (m, 2), predictions."""

@@ -53,7 +53,9 @@ def echoes_from_recording(
     speed_of_sound: float,
     max_delta_d: Optional[float],
     pattern: Optional[str] = None,
-) -> Tuple[npt.NDArray[np.float64], int, int]: ...
+    echoes_per_frame: Optional[int] = None,
+    sweep: Optional[str] = None,
+) -> Tuple[npt.NDArray[np.float64], int, int, npt.NDArray[np.float64]]: ...
 def room_echoes(
     samples: npt.NDArray[np.float32],
     sample_rate: float,
