@@ -267,14 +267,33 @@ fn simulate<'py>(
         if let Some(s) = seed {
             scene.seed = s;
         }
-        chirpmap::simulate(&scene).map_err(|e| format!("{name}: {}", error_text(&e)))
+        let run = chirpmap::simulate(&scene).map_err(|e| format!("{name}: {}", error_text(&e)))?;
+        // The surface metrics `chirpmap simulate` writes to summary.json.
+        let eval = chirpmap::evaluate(&run.resolved.obstacles, &run.map, &run.output.echoes);
+        Ok((run, eval))
     })?;
+    let (run, eval) = run;
     let d = PyDict::new(py);
     let (rows, cols) = convert::echoes_to_rows(&run.output.echoes);
     d.set_item("echoes", table(py, rows, cols)?)?;
     let scores = PyDict::new(py);
     scores.set_item("score_obstacle", run.scores.score_obstacle)?;
     scores.set_item("score_highlight", run.scores.score_highlight)?;
+    let m = &eval.surfaces;
+    scores.set_item("surface_precision", m.precision)?;
+    scores.set_item("surface_recall", m.recall)?;
+    scores.set_item("surface_f1", m.f1)?;
+    scores.set_item("chamfer_m", m.chamfer_m)?;
+    let walls = PyList::empty(py);
+    for w in &m.walls {
+        let wall = PyDict::new(py);
+        wall.set_item("a", [w.a.x, w.a.y])?;
+        wall.set_item("b", [w.b.x, w.b.y])?;
+        wall.set_item("offset_m", w.offset_m)?;
+        wall.set_item("angle_deg", w.angle_deg)?;
+        walls.append(wall)?;
+    }
+    scores.set_item("walls", walls)?;
     d.set_item("scores", scores)?;
     d.set_item("scene", run.resolved.scene.to_toml_string())?;
     d.set_item("seed", run.resolved.scene.seed)?;

@@ -110,7 +110,8 @@ def test_simulate_default_scene_matches_cli(cli, tmp_path, seed):
     assert np.array_equal(run.echoes, echoes)
     check_map_files(d, run)
     s = summary(d)
-    assert run.scores == {"score_obstacle": s["score_obstacle"], "score_highlight": s["score_highlight"]}
+    metrics = ("score_obstacle", "score_highlight", "surface_precision", "surface_recall", "surface_f1", "chamfer_m", "walls")
+    assert run.scores == {k: s[k] for k in metrics}
     assert run.scores["score_obstacle"] is not None
     assert (run.seed, run.n_measurements, run.n_obstacles) == (s["seed"], s["n_measurements"], s["n_obstacles"])
     assert len(run.highlights) == s["n_highlights"]
@@ -119,6 +120,20 @@ def test_simulate_default_scene_matches_cli(cli, tmp_path, seed):
     # The resolved scene replays the run.
     again = chirpmap.simulate(run.scene)
     assert np.array_equal(again.echoes, run.echoes) and again.scores == run.scores
+
+
+def test_simulate_with_the_evidence_mapper_scores_as_the_cli(cli, tmp_path):
+    """The evidence mapper's surface metrics (F1, Chamfer, walls), as
+    summary.json holds them."""
+    scene = tmp_path / "ev.toml"
+    scene.write_text('[mapping]\nmapper = "evidence"\n')
+    run_cli(cli, "simulate", scene, "--seed", 4, "--out", tmp_path / "sim")
+    run = chirpmap.simulate({"mapping": {"mapper": "evidence"}}, seed=4)
+    s = summary(tmp_path / "sim")
+    check_map_files(tmp_path / "sim", run)
+    keys = ("score_obstacle", "score_highlight", "surface_precision", "surface_recall", "surface_f1", "chamfer_m", "walls")
+    assert run.scores == {k: s[k] for k in keys}
+    assert run.scores["surface_f1"] > 0 and len(run.surfaces) > 0
 
 
 def test_scene_as_path_text_and_dict_match_cli(cli, tmp_path):

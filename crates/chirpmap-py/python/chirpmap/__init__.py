@@ -128,8 +128,15 @@ class Simulation(MapResult):
         echoes: ``(n, 9)`` float64 in the columns of echoes.csv
             (:data:`ECHO_COLUMNS`; ``sigma_m``, the Δd uncertainty of a
             particle echo, last), the CLI's rows.
-        scores: ``{"score_obstacle": float | None, "score_highlight":
-            float | None}`` (paper §III.A; None when the scene has no obstacles).
+        scores: summary.json's scores: ``score_obstacle`` and
+            ``score_highlight`` (paper §III.A; None when the scene has no
+            obstacles), and the surface metrics against the scene's
+            obstacles (issue 9; of the surfaces, or of the highlights as
+            points for the paper mapper): ``surface_precision``,
+            ``surface_recall``, ``surface_f1`` (within 0.1 m),
+            ``chamfer_m`` (None when either side is empty) and ``walls``
+            (per true wall: ``a``, ``b``, and its best line's ``offset_m``
+            and ``angle_deg``, None when no line matches).
         scene: the resolved scene as TOML (random obstacles listed, duration
             explicit): ``simulate(run.scene)`` replays the run exactly.
         seed: the master seed used.
@@ -139,7 +146,7 @@ class Simulation(MapResult):
     """
 
     echoes: np.ndarray = field(default_factory=lambda: np.zeros((0, 8)))
-    scores: Dict[str, Optional[float]] = field(default_factory=dict)
+    scores: Dict[str, Any] = field(default_factory=dict)
     scene: str = ""
     seed: int = 0
     n_measurements: int = 0

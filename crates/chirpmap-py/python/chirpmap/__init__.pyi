@@ -30,7 +30,7 @@ class Simulation(MapResult):
     """One simulated run: echoes (n, 9), its map, scores and resolved scene."""
 
     echoes: npt.NDArray[np.float64]
-    scores: Dict[str, Optional[float]]
+    scores: Dict[str, Any]
     scene: str
     seed: int
     n_measurements: int
