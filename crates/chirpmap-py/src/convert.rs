@@ -155,8 +155,15 @@ pub fn load_scene(src: SceneSource<'_>) -> Result<(Scene, SynthConfig, String), 
             // Before the conversions (JSON, a TOML table, TOML text), which
             // took 3 GB for a dict of a million obstacles.
             check_scene_size(json, "scene dict (as JSON)")?;
-            let table: toml::Table =
-                serde_json::from_str(json).map_err(|e| format!("scene dict: not a TOML table: {e}"))?;
+            let table: toml::Table = serde_json::from_str(json).map_err(|e| {
+                // Name the key: serde's message gives a column of JSON the
+                // user never wrote.
+                let value: Option<serde_json::Value> = serde_json::from_str(json).ok();
+                match value.as_ref().and_then(|v| first_unrepresentable(v, String::new())) {
+                    Some((key, what)) => format!("scene dict: `{key}` is {what}, which a scene cannot hold"),
+                    None => format!("scene dict: not a TOML table: {e}"),
+                }
+            })?;
             let text = toml::to_string(&table).map_err(|e| format!("scene dict: {e}"))?;
             let (s, c) = chirpmap::parse_scene(&text).map_err(|e| format!("scene dict: {}", error_text(&e)))?;
             Ok((s, c, "scene dict".into()))
@@ -196,6 +203,54 @@ fn check_scene_size(text: &str, what: &str) -> Result<(), String> {
         return Err(format!("{what} is too large: {} bytes (the limit is {MAX_SCENE_BYTES} bytes)", text.len()));
     }
     chirpmap::core::error::check_toml_values(text).map_err(|e| format!("{what}: {e}"))
+}
+
+/// The first value of a scene dict that TOML cannot hold (`None`, or an
+/// integer beyond TOML's 64-bit signed range), with its key path
+/// (`listeners[0].start`) and what it is.
+fn first_unrepresentable(v: &serde_json::Value, at: String) -> Option<(String, String)> {
+    use serde_json::Value;
+    match v {
+        Value::Null => Some((at, "None".into())),
+        Value::Number(n) if n.is_u64() && n.as_i64().is_none() => {
+            Some((at, format!("{n}, beyond a TOML integer's 2^63 - 1")))
+        }
+        Value::Array(items) => {
+            items.iter().enumerate().find_map(|(i, x)| first_unrepresentable(x, format!("{at}[{i}]")))
+        }
+        Value::Object(map) => map.iter().find_map(|(k, x)| {
+            let key = if at.is_empty() { k.clone() } else { format!("{at}.{k}") };
+            first_unrepresentable(x, key)
+        }),
+        _ => None,
+    }
+}
+
+/// The evidence mapper's parameters from the JSON of a dict. On a value of
+/// the wrong type, the key is named: serde's message gives a column of
+/// JSON the user never wrote, so each key is tried alone (the others at
+/// their defaults) to find the one refused.
+fn evidence_params(json: &str) -> Result<EvidenceParams, String> {
+    serde_json::from_str(json).map_err(|e| {
+        let keys: Option<serde_json::Map<String, serde_json::Value>> = serde_json::from_str(json).ok();
+        let bad = keys.iter().flatten().find_map(|(k, v)| {
+            let one = serde_json::Value::Object(std::iter::once((k.clone(), v.clone())).collect());
+            serde_json::from_value::<EvidenceParams>(one).err().map(|e| (k.clone(), e))
+        });
+        match bad {
+            Some((k, e)) => {
+                let msg = e.to_string();
+                // serde's "invalid type: …, expected u32" without a position.
+                let msg = msg.split(" at line ").next().unwrap_or(&msg).to_owned();
+                if msg.starts_with("unknown field") {
+                    format!("evidence: {msg}")
+                } else {
+                    format!("evidence.{k}: {msg}")
+                }
+            }
+            None => format!("evidence: {e}"),
+        }
+    })
 }
 
 /// Algorithm 1's parameters (and the mapper) from the Python keywords; the
@@ -246,7 +301,7 @@ pub fn mapping_params(
     );
     let evidence: EvidenceParams = match evidence_json {
         None => EvidenceParams::default(),
-        Some(j) => serde_json::from_str(j).map_err(|e| format!("evidence: {e}"))?,
+        Some(j) => evidence_params(j)?,
     };
     let params = MappingParams { cell, keep_top, min_of_max, peak_radius, ellipse_points, mapper, evidence };
     params.validate().map_err(|e| error_text(&e))?;
@@ -314,6 +369,16 @@ mod tests {
         assert_eq!((s.seed, c.chirps, s.world.speed_of_sound, name.as_str()), (9, 2, 340.0, "scene dict"));
         let err = load_scene(SceneSource::Json(r#"{"sede": 9}"#)).expect_err("unknown key");
         assert!(err.starts_with("scene dict: ") && err.contains("sede"), "{err}");
+        // What TOML cannot hold is named by its key.
+        let err = load_scene(SceneSource::Json(r#"{"seed": null}"#)).expect_err("null");
+        assert_eq!(err, "scene dict: `seed` is None, which a scene cannot hold");
+        let err = load_scene(SceneSource::Json(r#"{"listeners": [{"start": [0, null]}]}"#)).expect_err("null");
+        assert_eq!(err, "scene dict: `listeners[0].start[1]` is None, which a scene cannot hold");
+        let err = load_scene(SceneSource::Json(r#"{"seed": 9223372036854775808}"#)).expect_err("u64");
+        assert_eq!(
+            err,
+            "scene dict: `seed` is 9223372036854775808, beyond a TOML integer's 2^63 - 1, which a scene cannot hold"
+        );
         let err = load_scene(SceneSource::Path(std::path::Path::new("/nonexistent/scene.toml"))).expect_err("missing");
         assert!(err.starts_with("cannot read scene /nonexistent/scene.toml: "), "{err}");
         assert_eq!(load_scene(SceneSource::Default).expect("default").0, Scene::default());
@@ -336,6 +401,10 @@ mod tests {
         assert!(err.starts_with("ellipse_points: applies to mapper='paper' only"), "{err}");
         let err = mapping_params(0.1, None, None, None, 0, "paper", Some("{}")).expect_err("evidence only");
         assert!(err.starts_with("evidence: applies to mapper='evidence' only"), "{err}");
+        let err =
+            mapping_params(0.1, None, None, None, 0, "evidence", Some(r#"{"angle_bins": 360, "min_support": 6.0}"#))
+                .expect_err("type");
+        assert_eq!(err, "evidence.min_support: invalid type: floating point `6.0`, expected u32");
         let p = mapping_params(0.1, None, Some(0.05), None, 0, "paper", None).expect("paper");
         assert_eq!((p.keep_top, p.min_of_max, p.peak_radius), (MappingParams::default().keep_top, 0.05, 5.0));
     }
