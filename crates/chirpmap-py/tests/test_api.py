@@ -418,3 +418,25 @@ def test_read_echoes_by_column_name(tmp_path):
         bad.write_text(text)
         with pytest.raises(ValueError, match=message):
             chirpmap.read_echoes(bad)
+
+
+def test_sample_arrays_are_checked_by_kind():
+    """Empty samples, integer types no WAV holds, and measurement periods
+    that are not positive milliseconds are refused, each named."""
+    rec, rate, poses = chirpmap.synth({"synth": {"chirps": 2}})
+    with pytest.raises(ValueError, match=r"samples: empty \(no samples\)"):
+        chirpmap.room_echoes(np.zeros(0), rate, (0, 0), (1, 0), input="rir")
+    with pytest.raises(TypeError, match=r"samples: int64 is not a PCM format chirpmap reads \(int16, int32\)"):
+        chirpmap.range(np.zeros(100_000, dtype=np.int64), rate, (-3, 10), (0, 0))
+    for kwargs, message in [
+        ({"period_ms": -1}, r"period_ms: must be a number of milliseconds > 0, got -1"),
+        ({"period_ms": float("nan")}, r"period_ms: must be a number of milliseconds > 0, got nan"),
+        ({"frame_ms": 0}, r"frame_ms: must be a number of milliseconds > 0, got 0"),
+    ]:
+        with pytest.raises(ValueError, match=message):
+            chirpmap.echoes_from_recording(rec[:, 0], rate, poses[0], (0, 0), **kwargs)
+    # int16 PCM is the float recording's samples, quantised: ranged alike.
+    pcm = np.clip(np.round(rec[:, 0].astype(np.float64) * 32768), -32768, 32767).astype(np.int16)
+    a = chirpmap.range(pcm, rate, (-3, 10), (0, 0))
+    b = chirpmap.range(pcm.astype(np.float32) / np.float32(32768), rate, (-3, 10), (0, 0))
+    assert a == b

@@ -452,8 +452,9 @@ def range(  # noqa: A001 - the name the issue and the CLI use
     which describe the file and the run), with equal values.
 
     Args:
-        samples: 1-D array of samples (converted to float32, as a WAV is
-            read), or 2-D ``(n_samples, n_channels)`` with ``channel``.
+        samples: 1-D array of samples, or 2-D ``(n_samples, n_channels)``
+            with ``channel``: float (full scale ±1; converted to float32, as
+            a WAV is read), or int16 / int32 PCM (scaled to ±1 as a WAV's).
         sample_rate: Hz.
         speaker: speaker position ``(x, y)`` (m).
         mic: microphone position ``(x, y)`` (m).
@@ -582,6 +583,10 @@ def echoes_from_recording(
         A :class:`RecordingEchoes`.
     """
     x = _channel(samples, channel)
+    if not (isinstance(period_ms, (int, float, np.integer, np.floating)) and period_ms > 0):
+        raise ValueError(f"period_ms: must be a number of milliseconds > 0, got {period_ms!r}")
+    if frame_ms is not None and not (isinstance(frame_ms, (int, float, np.integer, np.floating)) and frame_ms > 0):
+        raise ValueError(f"frame_ms: must be a number of milliseconds > 0, got {frame_ms!r}")
     p = np.ascontiguousarray(poses, dtype=np.float64)
     if p.ndim != 2 or p.shape[1] != 3:
         raise ValueError(f"poses must be an (m, 3) array t, x, y; got shape {p.shape}")
@@ -747,7 +752,8 @@ def room_echoes(
 
     Args:
         samples: 1-D samples, or 2-D ``(n_samples, n_channels)`` with
-            ``channel`` (converted to float32, as a WAV is read).
+            ``channel`` (float, full scale ±1, converted to float32 as a WAV
+            is read; or int16 / int32 PCM, scaled to ±1 as a WAV's).
         sample_rate: Hz.
         speaker: speaker position ``(x, y)`` or ``(x, y, z)`` (m).
         mic: microphone position ``(x, y)`` or ``(x, y, z)`` (m); heights
@@ -868,6 +874,18 @@ def _channel(samples: Any, channel: int) -> np.ndarray:
             raise ValueError(f"channel: {channel} is not a channel of 1-D samples (one channel, 0)")
     else:
         raise ValueError(f"samples must be 1-D or 2-D, got {x.ndim} dimensions")
+    if x.size == 0:
+        raise ValueError("samples: empty (no samples)")
+    if np.issubdtype(x.dtype, np.integer):
+        # PCM as soundfile or scipy.io.wavfile return it: scaled to full
+        # scale ±1 exactly as chirpmap's WAV reader scales the same file.
+        if x.dtype == np.int16:
+            return np.ascontiguousarray(x.astype(np.float32) / np.float32(32768.0))
+        if x.dtype == np.int32:
+            return np.ascontiguousarray((x.astype(np.float64) / 2147483648.0).astype(np.float32))
+        raise TypeError(
+            f"samples: {x.dtype} is not a PCM format chirpmap reads (int16, int32); convert to float, full scale ±1"
+        )
     return np.ascontiguousarray(x, dtype=np.float32)
 
 
