@@ -205,16 +205,14 @@ fn check_scene_size(text: &str, what: &str) -> Result<(), String> {
     chirpmap::core::error::check_toml_values(text).map_err(|e| format!("{what}: {e}"))
 }
 
-/// The first value of a scene dict that TOML cannot hold (`None`, or an
-/// integer beyond TOML's 64-bit signed range), with its key path
-/// (`listeners[0].start`) and what it is.
+/// The first value of a scene dict that TOML cannot hold (`None`; the
+/// Python wrapper refuses integers beyond TOML's 64-bit range, which JSON
+/// would carry as floats), with its key path (`listeners[0].start`) and
+/// what it is.
 fn first_unrepresentable(v: &serde_json::Value, at: String) -> Option<(String, String)> {
     use serde_json::Value;
     match v {
         Value::Null => Some((at, "None".into())),
-        Value::Number(n) if n.is_u64() && n.as_i64().is_none() => {
-            Some((at, format!("{n}, beyond a TOML integer's 2^63 - 1")))
-        }
         Value::Array(items) => {
             items.iter().enumerate().find_map(|(i, x)| first_unrepresentable(x, format!("{at}[{i}]")))
         }
@@ -374,11 +372,6 @@ mod tests {
         assert_eq!(err, "scene dict: `seed` is None, which a scene cannot hold");
         let err = load_scene(SceneSource::Json(r#"{"listeners": [{"start": [0, null]}]}"#)).expect_err("null");
         assert_eq!(err, "scene dict: `listeners[0].start[1]` is None, which a scene cannot hold");
-        let err = load_scene(SceneSource::Json(r#"{"seed": 9223372036854775808}"#)).expect_err("u64");
-        assert_eq!(
-            err,
-            "scene dict: `seed` is 9223372036854775808, beyond a TOML integer's 2^63 - 1, which a scene cannot hold"
-        );
         let err = load_scene(SceneSource::Path(std::path::Path::new("/nonexistent/scene.toml"))).expect_err("missing");
         assert!(err.starts_with("cannot read scene /nonexistent/scene.toml: "), "{err}");
         assert_eq!(load_scene(SceneSource::Default).expect("default").0, Scene::default());

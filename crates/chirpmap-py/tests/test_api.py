@@ -119,7 +119,7 @@ def test_bad_recordings_raise_value_error():
         chirpmap.range(noise, fs, (float("nan"), 0), (1, 0))
     with pytest.raises(ValueError, match=r"mic: expected \(x, y\), got 3 values"):
         chirpmap.range(noise, fs, (0, 0), (1, 0, 0))
-    with pytest.raises(ValueError, match=r"channel: 2 is not a channel of 2"):
+    with pytest.raises(ValueError, match=r"channel: 2 is not a channel of samples \(2 channels\)"):
         chirpmap.range(np.zeros((10, 2)), fs, (0, 0), (1, 0), channel=2)
 
 
@@ -376,6 +376,15 @@ def test_python_audit_findings(tmp_path):
         chirpmap.range(rec[:, 0], rate, (-3, 10), (0, 0), compare="no")
     # The CLI's default method.
     assert chirpmap.range(rec[:, 0], rate, (-3, 10), (0, 0))["method"] == "gap"
+    # Integers no TOML integer holds, named by key (JSON turned 2**64 into a float).
+    for big in (2**63, 2**64, 2**70, -(2**63) - 1):
+        with pytest.raises(ValueError, match=r"scene dict: `particles.per_tick` is -?\d+, beyond a TOML integer's range"):
+            chirpmap.simulate({"particles": {"per_tick": big}})
+    # One-line TOML text that mentions a .toml file is still text.
+    assert chirpmap.simulate("seed = 3  # as in run.toml").seed == 3
+    # A mono calibration with a stereo recording is named as the calibration.
+    with pytest.raises(ValueError, match=r"channel: 1 is not a channel of 1-D calibration"):
+        chirpmap.room_echoes(np.stack([rec[:, 0]] * 2, axis=1), rate, (0, 0), (1, 0), calibration=rec[:, 0], channel=1)
     # A missing scene file named with `=` is a missing file, not bad TOML.
     with pytest.raises(ValueError) as e:
         chirpmap.simulate(str(tmp_path / "runs" / "a=1.toml"))
@@ -404,6 +413,11 @@ def test_read_echoes_by_column_name(tmp_path):
     shuffled = tmp_path / "shuffled.csv"
     shuffled.write_text("sigma_m,delta_d,listener_y,listener_x,source_y,source_x,extra\n0.02,2.5,1,1,0,0,x\n,2.4,1,1.1,0,0,y\n")
     got = chirpmap.read_echoes(str(shuffled))
+    # Excel's "CSV UTF-8" byte-order mark, and bytes that are not UTF-8 in
+    # a column left out, as the CLI reads them.
+    bom = tmp_path / "bom.csv"
+    bom.write_bytes(b"\xef\xbb\xbf" + shuffled.read_bytes().replace(b",x\n", b",\xff\n"))
+    assert np.array_equal(chirpmap.read_echoes(bom), got, equal_nan=True)
     assert np.array_equal(got[0], [0, 0, 1, 1, 2.5, 1, 0, 0, 0.02])
     assert np.array_equal(got[1, :8], [0, 0, 1.1, 1, 2.4, 1, 0, 0]) and np.isnan(got[1, 8])
     for text, message in [
@@ -413,6 +427,9 @@ def test_read_echoes_by_column_name(tmp_path):
         ("source_x,source_y,listener_x,listener_y,delta_d\n0,0,1,1,\n", r"bad.csv:2: missing value for `delta_d`"),
         ("delta_d,delta_d\n1,2\n", r"bad.csv:1: column `delta_d` appears twice"),
         ("", r"bad.csv:1: no header"),
+        # Rust's number syntax, as the CLI reads: no `2_5` (Python's float() read 25).
+        ("source_x,source_y,listener_x,listener_y,delta_d\n0,0,1,1,2_5\n", r"bad.csv:2: `delta_d` = '2_5' is not a number"),
+        ("source_x,source_y,listener_x,listener_y,delta_d,sigma_m\n0,0,1,1,2,nan\n", r"bad.csv:2: `sigma_m` = 'nan' is not finite"),
     ]:
         bad = tmp_path / "bad.csv"
         bad.write_text(text)

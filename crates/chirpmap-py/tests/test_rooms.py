@@ -332,7 +332,7 @@ def test_bad_room_inputs_raise_value_errors_naming_the_argument():
         (dict(calibration=np.zeros(fs, dtype=np.float32)), r"^calibration: the channel is silent"),
         (dict(calibration=noise[:100]), r"^calibration: duration: the chirp \(0.5 s\) is longer"),
         (dict(listener=-1), r"^listener: must be between 0 and 2\^32 - 1"),
-        (dict(samples=np.zeros((10, 2)), channel=2), r"channel: 2 is not a channel of 2"),
+        (dict(samples=np.zeros((10, 2)), channel=2), r"channel: 2 is not a channel of samples \(2 channels\)"),
         (dict(samples=np.zeros((2, 2, 2))), r"samples must be 1-D or 2-D"),
     ]
     for extra, message in cases:

@@ -19,8 +19,8 @@ Functions: :func:`simulate`, :func:`map_echoes`, :func:`synth`, :func:`range`,
 :func:`echoes_from_recording`, :func:`room_echoes`, :func:`read_echoes`.
 Results compare by identity (their arrays have no single truth value);
 compare their fields with ``np.array_equal``. Calls work in forked
-children (``multiprocessing``'s default on Linux): each process runs its
-own threads.
+children (``multiprocessing``'s fork start method, the default on Linux
+before Python 3.14): each process runs its own threads.
 Arrays come back as numpy arrays that own Rust's buffers (no copies); every
 long step runs with the GIL released, and Ctrl-C interrupts it within 50 ms
 (the interrupted work finishes in the background and is dropped; the next
@@ -186,12 +186,44 @@ def _json_default(value: Any) -> Any:
     raise TypeError(f"a value of type {type(value).__name__} is not a number, string, list or dict")
 
 
+def _is_toml(text: str) -> bool:
+    """Whether ``text`` parses as TOML (Python 3.11's tomllib); on older
+    Pythons, whether it has a key (``x = ...``) with a space before the
+    value, which a path hardly has."""
+    try:
+        import tomllib
+    except ImportError:  # Python < 3.11
+        import re
+
+        return re.search(r"\s=|=\s", text) is not None
+    try:
+        tomllib.loads(text)
+        return True
+    except tomllib.TOMLDecodeError:
+        return False
+
+
+def _check_integers(value: Any, at: str) -> None:
+    """Refuses an integer a scene cannot hold (TOML's are 64-bit signed),
+    naming its key; JSON would turn it into a float silently."""
+    if isinstance(value, dict):
+        for k, v in value.items():
+            _check_integers(v, f"{at}.{k}" if at else str(k))
+    elif isinstance(value, (list, tuple)):
+        for i, v in enumerate(value):
+            _check_integers(v, f"{at}[{i}]")
+    elif isinstance(value, (int, np.integer)) and not isinstance(value, bool):
+        if not -(2**63) <= int(value) <= 2**63 - 1:
+            raise ValueError(f"scene dict: `{at}` is {int(value)}, beyond a TOML integer's range (±2^63)")
+
+
 def _scene_source(scene: SceneLike) -> Tuple[str, str]:
     """(kind, payload) for the compiled module: how to read ``scene``."""
     if scene is None:
         return "default", ""
     if isinstance(scene, dict):
         try:
+            _check_integers(scene, "")
             return "json", json.dumps(scene, allow_nan=False, default=_json_default)
         except (TypeError, ValueError) as e:
             raise ValueError(f"scene dict: {e}") from None
@@ -203,9 +235,9 @@ def _scene_source(scene: SceneLike) -> Tuple[str, str]:
         # TOML text holds a key (`=`), a table header or a line break; a bare
         # name is a path, so a missing file is reported as one.
         if "=" in scene or "[" in scene or "\n" in scene or scene.strip() == "":
-            # One line naming a .toml file is a path, `=` or `[` in it or
-            # not (hydra's run directories: runs/a=1.toml).
-            one_path = "\n" not in scene and scene.strip().lower().endswith(".toml")
+            # One line naming a .toml file that is not TOML text is a path,
+            # `=` or `[` in it or not (hydra's run directories: runs/a=1.toml).
+            one_path = "\n" not in scene and scene.strip().lower().endswith(".toml") and not _is_toml(scene)
             if os.path.isfile(scene) or one_path:
                 return "path", scene
             return "toml", scene
@@ -258,20 +290,22 @@ def read_echoes(path: Union[str, "os.PathLike[str]"]) -> np.ndarray:
     such as ``np.loadtxt`` would take ``sigma_m``. Absent columns and empty
     cells take their defaults (``weight`` 1, ``t`` 0, ``listener`` 0,
     ``sigma_m`` NaN = none); other columns are left out. Values are checked
-    by :func:`map_echoes`, whose errors name the row (row ``i`` is line
-    ``i + 2`` of the file).
+    by :func:`map_echoes`, whose errors name the row (``echoes[i]``: the
+    ``i``-th row of data, blank lines not counted).
 
     Raises:
         ValueError: no header, a required column missing or given twice, a
-            row of the wrong length or a cell that is not a number (the
-            message names the file and line).
+            row of the wrong length, or a cell that is not a finite number
+            (the message names the file and line).
         OSError: the file cannot be read.
     """
     import csv
 
     name = os.fspath(path)
     defaults = {"weight": 1.0, "t": 0.0, "listener": 0.0, "sigma_m": float("nan")}
-    with open(name, newline="", encoding="utf-8") as f:
+    # utf-8-sig: Excel's "CSV UTF-8" starts with a byte-order mark; bytes
+    # that are not UTF-8 (in a column left out, say) become U+FFFD.
+    with open(name, newline="", encoding="utf-8-sig", errors="replace") as f:
         rows = csv.reader(f)
         header = [h.strip() for h in next(rows, [])]
         if not header or header == [""]:
@@ -298,10 +332,16 @@ def read_echoes(path: Union[str, "os.PathLike[str]"]) -> np.ndarray:
                         raise ValueError(f"{name}:{line}: missing value for `{h}`")
                     values.append(defaults[h])
                     continue
+                # Rust's number syntax, as the CLI reads it: no `1_0`.
                 try:
-                    values.append(float(cell))
+                    v = float(cell) if "_" not in cell else None
                 except ValueError:
-                    raise ValueError(f"{name}:{line}: `{h}` = {cell[:40]!r} is not a number") from None
+                    v = None
+                if v is None:
+                    raise ValueError(f"{name}:{line}: `{h}` = {cell[:40]!r} is not a number")
+                if not np.isfinite(v):
+                    raise ValueError(f"{name}:{line}: `{h}` = {cell[:40]!r} is not finite")
+                values.append(v)
             out.append(values)
     return np.array(out, dtype=np.float64).reshape(len(out), len(ECHO_COLUMNS))
 
@@ -793,7 +833,7 @@ def room_echoes(
     if input not in _INPUTS:
         raise ValueError(f"input: {input!r} is not an input kind (recording or rir)")
     x = _channel(samples, channel)
-    cal = None if calibration is None else _channel(calibration, channel)
+    cal = None if calibration is None else _channel(calibration, channel, "calibration")
     (sx, sy, sz) = _point_2or3("speaker", speaker)
     (mx, my, mz) = _point_2or3("mic", mic)
     if (sz is None) != (mz is None):
@@ -848,8 +888,8 @@ def _point_2or3(name: str, p: Sequence[float]) -> Tuple[float, float, Optional[f
     return v[0], v[1], (v[2] if len(v) == 3 else None)
 
 
-def _channel(samples: Any, channel: int) -> np.ndarray:
-    """One channel as contiguous float32 (as a WAV's samples are read)."""
+def _channel(samples: Any, channel: int, what: str = "samples") -> np.ndarray:
+    """One channel of ``what`` as contiguous float32 (as a WAV's samples are read)."""
     if isinstance(channel, bool) or not hasattr(channel, "__index__"):
         raise TypeError(f"channel must be an int, not {type(channel).__name__}")
     channel = operator.index(channel)
@@ -858,24 +898,24 @@ def _channel(samples: Any, channel: int) -> np.ndarray:
     x = np.asarray(samples)
     if np.iscomplexobj(x):
         # numpy would drop the imaginary part with only a warning.
-        raise TypeError("samples must be real, not complex")
+        raise TypeError(f"{what} must be real, not complex")
     if x.ndim == 2:
         if x.shape[0] < x.shape[1]:
             # torchaudio's and librosa's (channels, frames) layout.
             raise ValueError(
-                f"samples: shape {x.shape} has fewer samples than channels; pass "
-                "(n_samples, n_channels), e.g. samples.T"
+                f"{what}: shape {x.shape} has fewer samples than channels; pass "
+                f"(n_samples, n_channels), e.g. {what}.T"
             )
         if not 0 <= channel < x.shape[1]:
-            raise ValueError(f"channel: {channel} is not a channel of {x.shape[1]}")
+            raise ValueError(f"channel: {channel} is not a channel of {what} ({x.shape[1]} channels)")
         x = x[:, channel]
     elif x.ndim == 1:
         if channel != 0:
-            raise ValueError(f"channel: {channel} is not a channel of 1-D samples (one channel, 0)")
+            raise ValueError(f"channel: {channel} is not a channel of 1-D {what} (one channel, 0)")
     else:
-        raise ValueError(f"samples must be 1-D or 2-D, got {x.ndim} dimensions")
+        raise ValueError(f"{what} must be 1-D or 2-D, got {x.ndim} dimensions")
     if x.size == 0:
-        raise ValueError("samples: empty (no samples)")
+        raise ValueError(f"{what}: empty (no samples)")
     if np.issubdtype(x.dtype, np.integer):
         # PCM as soundfile or scipy.io.wavfile return it: scaled to full
         # scale ±1 exactly as chirpmap's WAV reader scales the same file.
@@ -884,7 +924,7 @@ def _channel(samples: Any, channel: int) -> np.ndarray:
         if x.dtype == np.int32:
             return np.ascontiguousarray((x.astype(np.float64) / 2147483648.0).astype(np.float32))
         raise TypeError(
-            f"samples: {x.dtype} is not a PCM format chirpmap reads (int16, int32); convert to float, full scale ±1"
+            f"{what}: {x.dtype} is not a PCM format chirpmap reads (int16, int32); convert to float, full scale ±1"
         )
     return np.ascontiguousarray(x, dtype=np.float32)
 
