@@ -46,13 +46,13 @@ const SIGNAL_POLL: std::time::Duration = std::time::Duration::from_millis(50);
 /// Each thread is listed with the process that started it: a forked child
 /// (`multiprocessing`'s default on Linux) inherits the list but not the
 /// threads, which would never finish there.
-static ABANDONED: std::sync::Mutex<Vec<(u32, std::thread::JoinHandle<()>)>> = std::sync::Mutex::new(Vec::new());
+static ABANDONED: std::sync::Mutex<Vec<(ProcessKey, std::thread::JoinHandle<()>)>> = std::sync::Mutex::new(Vec::new());
 
-fn abandoned() -> std::sync::MutexGuard<'static, Vec<(u32, std::thread::JoinHandle<()>)>> {
+fn abandoned() -> std::sync::MutexGuard<'static, Vec<(ProcessKey, std::thread::JoinHandle<()>)>> {
     // The list stays valid whatever a holder did: a poisoned lock is taken as is.
     let mut list = ABANDONED.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
-    let me = std::process::id();
-    if list.iter().any(|(pid, _)| *pid != me) {
+    let me = process_key();
+    if list.iter().any(|(key, _)| *key != me) {
         // A parent's threads: their handles are forgotten, not dropped
         // (dropping detaches a thread this process does not have).
         for entry in std::mem::take(&mut *list) {
@@ -72,14 +72,33 @@ fn abandoned() -> std::sync::MutexGuard<'static, Vec<(u32, std::thread::JoinHand
 /// `multiprocessing.Pool` of seeds hung, whether or not the parent had
 /// called chirpmap, since the global pool was built at import). A child
 /// builds its own on its first call.
-static POOL: std::sync::Mutex<Option<(u32, std::sync::Arc<rayon::ThreadPool>)>> = std::sync::Mutex::new(None);
+static POOL: std::sync::Mutex<Option<(ProcessKey, std::sync::Arc<rayon::ThreadPool>)>> = std::sync::Mutex::new(None);
+
+/// A process: its id and the forks before it ([`FORKS`]).
+type ProcessKey = (u32, u64);
+
+fn process_key() -> ProcessKey {
+    (std::process::id(), FORKS.load(std::sync::atomic::Ordering::Relaxed))
+}
+
+/// Forks seen by this process's line of descent (Python's
+/// `os.register_at_fork` calls [`after_fork`] in each child): with the
+/// process id, it names the process a pool belongs to even if a child got
+/// the id of a dead ancestor that had built one.
+static FORKS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+
+/// Counts a fork; the package registers it with `os.register_at_fork`.
+#[pyfunction]
+fn after_fork() {
+    FORKS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+}
 
 fn pool() -> Result<std::sync::Arc<rayon::ThreadPool>, String> {
     let mut slot = POOL.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
-    let me = std::process::id();
+    let me = process_key();
     match slot.take() {
-        Some((pid, pool)) if pid == me => {
-            *slot = Some((pid, pool.clone()));
+        Some((key, pool)) if key == me => {
+            *slot = Some((key, pool.clone()));
             return Ok(pool);
         }
         // A parent's pool: forgotten, as its threads are not here to stop.
@@ -158,7 +177,7 @@ fn interruptible<T: Send + 'static>(
             Ok(result) => return result.map_err(value_error),
             Err(RecvTimeoutError::Timeout) => {
                 if let Err(e) = py.check_signals() {
-                    abandoned().push((std::process::id(), worker));
+                    abandoned().push((process_key(), worker));
                     return Err(e);
                 }
             }
@@ -656,5 +675,6 @@ fn _chirpmap(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(echoes_from_recording, m)?)?;
     m.add_function(wrap_pyfunction!(room_echoes, m)?)?;
     m.add_function(wrap_pyfunction!(room_echo_defaults, m)?)?;
+    m.add_function(wrap_pyfunction!(after_fork, m)?)?;
     Ok(())
 }

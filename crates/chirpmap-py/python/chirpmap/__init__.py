@@ -42,6 +42,10 @@ from . import _chirpmap
 
 __version__: str = _chirpmap.__version__
 
+if hasattr(os, "register_at_fork"):
+    # A child's first call builds its own threads (see _chirpmap's pool).
+    os.register_at_fork(after_in_child=_chirpmap.after_fork)
+
 __all__ = [
     "ECHO_COLUMNS",
     "MapResult",
@@ -653,7 +657,7 @@ def echoes_from_recording(
         None if max_delta_d is None else float(max_delta_d),
         pattern,
         None if echoes_per_frame is None else int(echoes_per_frame),
-        str(sweep),
+        "linear" if sweep is None else str(sweep),
     )
     return RecordingEchoes(echoes, chirps, skipped, rates)
 
