@@ -30,7 +30,36 @@ use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
 fn value_error(msg: impl Into<String>) -> PyErr {
-    PyValueError::new_err(msg.into())
+    PyValueError::new_err(python_names(msg.into()))
+}
+
+/// The CLI's flags in the library's messages ("check --f-start/--f-end/
+/// --duration", "pass smaller --bounds or a larger --cell") as the Python
+/// arguments they are here.
+fn python_names(mut msg: String) -> String {
+    const FLAGS: [(&str, &str); 15] = [
+        ("--f-start", "f_start"),
+        ("--f-end", "f_end"),
+        ("--duration", "duration"),
+        ("--max-delta-d", "max_delta_d"),
+        ("--speed-of-sound", "speed_of_sound"),
+        ("--bounds", "bounds"),
+        ("--cell", "cell"),
+        ("--channel", "channel"),
+        ("--floor-z", "floor_z"),
+        ("--ceiling-z", "ceiling_z"),
+        ("--speaker", "speaker"),
+        ("--mic", "mic"),
+        ("--calibration", "calibration"),
+        ("--sweep", "sweep"),
+        ("--period-ms", "period_ms"),
+    ];
+    if msg.contains("--") {
+        for (flag, arg) in FLAGS {
+            msg = msg.replace(flag, arg);
+        }
+    }
+    msg
 }
 
 /// The name of a call's worker thread ([`interruptible`]).

@@ -457,3 +457,16 @@ def test_sample_arrays_are_checked_by_kind():
     a = chirpmap.range(pcm, rate, (-3, 10), (0, 0))
     b = chirpmap.range(pcm.astype(np.float32) / np.float32(32768), rate, (-3, 10), (0, 0))
     assert a == b
+
+
+def test_errors_name_python_arguments_not_cli_flags():
+    """The library's messages name the CLI's flags ("check --f-start/--f-end/
+    --duration"); Python's name the arguments."""
+    noise = np.random.default_rng(2).standard_normal(96000).astype(np.float32) * 0.01
+    with pytest.raises(ValueError) as e:
+        chirpmap.range(noise, 48000.0, (0, 0), (1, 0))
+    assert "no chirp found" in str(e.value) and "f_start/f_end/duration" in str(e.value)
+    assert "--" not in str(e.value), str(e.value)
+    with pytest.raises(ValueError) as e:
+        chirpmap.map_echoes(np.array([GOOD, GOOD]), bounds=(-1e5, -1e5, 1e5, 1e5), cell=0.01)
+    assert "smaller bounds or a larger cell" in str(e.value) and "--" not in str(e.value), str(e.value)
