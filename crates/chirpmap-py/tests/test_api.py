@@ -374,6 +374,8 @@ def test_python_audit_findings(tmp_path):
         chirpmap.range(rec[:, 0], rate, "00", (0, 0))
     with pytest.raises(TypeError, match=r"compare must be True or False, not str"):
         chirpmap.range(rec[:, 0], rate, (-3, 10), (0, 0), compare="no")
+    with pytest.raises(TypeError, match=r"echoes must be real, not complex"):
+        chirpmap.map_echoes(np.array([GOOD, GOOD], dtype=complex))
     # The CLI's default method.
     assert chirpmap.range(rec[:, 0], rate, (-3, 10), (0, 0))["method"] == "gap"
     # Integers no TOML integer holds, named by key (JSON turned 2**64 into a float).

@@ -403,6 +403,9 @@ def map_echoes(
         ValueError: bad echoes (the message names the row and column) or
             parameters, or a grid too large for the memory cap.
     """
+    if np.iscomplexobj(echoes):
+        # numpy would drop the imaginary part with only a warning.
+        raise TypeError("echoes must be real, not complex")
     arr = np.ascontiguousarray(echoes, dtype=np.float64)
     if arr.ndim != 2:
         raise ValueError(f"echoes must be a 2-D array (n, 5..9), got {arr.ndim} dimension(s)")
