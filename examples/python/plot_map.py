@@ -70,7 +70,8 @@ for ax in axes:
         else:
             ax.add_patch(plt.Polygon(o["vertices"], fill=False, color="orange", lw=1.5))
 axes[0].legend(loc="lower left")
-scores = ", ".join(f"{k} {v:.3f}" for k, v in run.scores.items() if v is not None)
+# The paper's two scores (run.scores also holds the surface metrics).
+scores = ", ".join(f"{k} {run.scores[k]:.3f}" for k in ("score_obstacle", "score_highlight") if run.scores[k] is not None)
 fig.suptitle(f"Acoustic ellipses: {len(run.echoes)} echoes; {scores}")
 
 # %%

@@ -472,3 +472,18 @@ def test_errors_name_python_arguments_not_cli_flags():
     with pytest.raises(ValueError) as e:
         chirpmap.map_echoes(np.array([GOOD, GOOD]), bounds=(-1e5, -1e5, 1e5, 1e5), cell=0.01)
     assert "smaller bounds or a larger cell" in str(e.value) and "--" not in str(e.value), str(e.value)
+
+
+def test_the_worked_example_runs(tmp_path):
+    """examples/python/plot_map.py, which the README calls the worked
+    example, runs to its figure (it crashed once `scores` held the surface
+    metrics' list of walls)."""
+    pytest.importorskip("matplotlib")
+    import subprocess
+
+    script = pathlib.Path(__file__).resolve().parents[3] / "examples" / "python" / "plot_map.py"
+    out = tmp_path / "plot.png"
+    env = dict(os.environ, MPLBACKEND="Agg")
+    p = subprocess.run([sys.executable, str(script), str(out)], capture_output=True, text=True, env=env, timeout=300)
+    assert p.returncode == 0, p.stderr[-2000:]
+    assert out.stat().st_size > 10_000
