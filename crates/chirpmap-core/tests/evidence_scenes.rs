@@ -451,6 +451,44 @@ fn pole_beside_a_straight_walk_is_one_point() {
     assert!(!points.is_empty() && points.iter().all(|s| s.ambiguous), "on the walk's line: ambiguous");
 }
 
+/// Echoes of a 0.2 m pole from a listener walking an arc of radius 3.7 m
+/// past it (160 poses, σ = 2 cm noise): `scene_sweep`'s scene 246, written
+/// out by it (tests/data/arc-past-pole/echoes.csv). Along the walk's last
+/// 29 poses, almost straight, the pole's echoes are also those of a line
+/// 9 m away on the far side; found first, that line took them, and the
+/// rest no longer piled up on the pole: ten points, nine of them strays,
+/// on any grid reaching the line. The envelope now looks for compact
+/// reflectors once more with ambiguous lines' echoes open, and a line a
+/// reflector of twice its support explains is dropped before the search.
+#[test]
+fn pole_past_an_arc_walk_is_one_point_whatever_the_grid() {
+    let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/arc-past-pole/echoes.csv"))
+        .expect("arc-past-pole echoes");
+    let echoes: Vec<Echo> = text
+        .lines()
+        .skip(1)
+        .map(|l| {
+            let v: Vec<f64> = l.split(',').map(|x| x.parse().expect("number")).collect();
+            Echo::new(Point::new(v[0], v[1]), Point::new(v[2], v[3]), v[4], v[5], v[6], v[7] as u32)
+                .expect("echo")
+                .with_sigma_m(v[8])
+                .expect("sigma")
+        })
+        .collect();
+    assert_eq!(echoes.len(), 160);
+    let pole = circle(2.36, 3.10, 0.20);
+    // The sweep's grid (the scene's box plus 2 m), and one 14 m wider each way.
+    for pad in [2.0, 14.0] {
+        let spec =
+            GridSpec::from_bounds([-3.67 - pad, -2.45 - pad, 2.63 + pad, 3.35 + pad], 0.1, u128::MAX).expect("grid");
+        let map = map_evidence(&echoes, spec, &EvidenceParams::default()).expect("evidence map");
+        print_surfaces(&format!("pole past an arc walk, grid padded {pad} m"), &map.surfaces);
+        let off: Vec<f64> = map.surfaces.iter().map(|s| pole.surface_distance(s.p0)).collect();
+        assert!(off.iter().any(|&d| d <= 0.15), "pole not found: {off:?}");
+        assert!(off.iter().all(|&d| d <= 0.35), "surfaces more than 0.35 m off the pole: {off:?}");
+    }
+}
+
 /// A room's four walls from precise echoes (σ = 1 cm, as matched-filter
 /// ranging gives) whatever the grid's bounds and cell. With the line vote's
 /// offset bins a whole cell wide, a wall's offset fell between two bins, the
