@@ -439,8 +439,13 @@ pub fn map_evidence(echoes: &[Echo], spec: GridSpec, params: &EvidenceParams) ->
     // Ambiguous lines still reported that a compact reflector of twice their
     // support explains, once their echoes are open to it: dropped, and the
     // reflectors sought again without them ([`ambiguous_lines_of_points`]).
-    let kept_ambiguous: Vec<bool> =
-        lines.accepted.iter().zip(&found.lines_kept).map(|(l, kept)| *kept && l.surface.ambiguous).collect();
+    // (A point of twice a line's support needs twice its measurements.)
+    let kept_ambiguous: Vec<bool> = lines
+        .accepted
+        .iter()
+        .zip(&found.lines_kept)
+        .map(|(l, kept)| *kept && l.surface.ambiguous && 2 * l.surface.support <= ctx.meas.len())
+        .collect();
     if kept_ambiguous.iter().any(|k| *k) {
         let taken = ambiguous_lines_of_points(&ctx, &lines, &kept_ambiguous);
         if taken.iter().any(|t| *t) {
