@@ -489,6 +489,39 @@ fn pole_past_an_arc_walk_is_one_point_whatever_the_grid() {
     }
 }
 
+/// 20 poses of a walk past a 0.058 m pole at (2.19, 0.65), with a wall at
+/// y = −3.66 and σ = 2 cm of noise (a scene the review of session 26
+/// generated; tests/data/wall-walk-pole). Its ambiguous lines were taken
+/// by a point on the pole that rested on echoes of another ambiguous line;
+/// the search without them then found the pole's mirror and nothing near
+/// the pole. A line is dropped now only if the new search's points take its
+/// echoes, so the line through the pole stays.
+#[test]
+fn a_line_is_dropped_only_for_a_reflector_found_again() {
+    let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/wall-walk-pole/echoes.csv"))
+        .expect("wall-walk-pole echoes");
+    let echoes: Vec<Echo> = text
+        .lines()
+        .skip(1)
+        .map(|l| {
+            let v: Vec<f64> = l.split(',').map(|x| x.parse().expect("number")).collect();
+            Echo::new(Point::new(v[0], v[1]), Point::new(v[2], v[3]), v[4], v[5], v[6], v[7] as u32).expect("echo")
+        })
+        .collect();
+    assert_eq!(echoes.len(), 40);
+    let pole = Point::new(2.1865, 0.6532);
+    // `map --echoes`'s default grid for these echoes.
+    let spec = GridSpec::from_bounds([-5.9, -3.8, 9.8, 9.8], 0.1, u128::MAX).expect("grid");
+    let map = map_evidence(&echoes, spec, &EvidenceParams::default()).expect("evidence map");
+    print_surfaces("walk past a pole beside a wall", &map.surfaces);
+    let nearest = map
+        .surfaces
+        .iter()
+        .map(|s| chirpmap_core::geometry::point_segment_distance(pole, s.p0, s.p1))
+        .fold(f64::INFINITY, f64::min);
+    assert!(nearest <= 0.2, "nothing within 0.2 m of the pole (nearest {nearest:.2} m)");
+}
+
 /// A room's four walls from precise echoes (σ = 1 cm, as matched-filter
 /// ranging gives) whatever the grid's bounds and cell. With the line vote's
 /// offset bins a whole cell wide, a wall's offset fell between two bins, the

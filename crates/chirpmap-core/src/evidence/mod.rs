@@ -434,7 +434,7 @@ pub fn map_evidence(echoes: &[Echo], spec: GridSpec, params: &EvidenceParams) ->
     let mut cells_updated = carve_free(&mut ctx)?;
 
     // Walls, then compact reflectors from the echoes no wall explains.
-    let mut lines = lines::find_lines(&ctx);
+    let lines = lines::find_lines(&ctx);
     let mut found = surfaces_from(&ctx, &lines);
     // Ambiguous lines still reported that a compact reflector of twice their
     // support explains, once their echoes are open to it: dropped, and the
@@ -449,9 +449,29 @@ pub fn map_evidence(echoes: &[Echo], spec: GridSpec, params: &EvidenceParams) ->
     if kept_ambiguous.iter().any(|k| *k) {
         let taken = ambiguous_lines_of_points(&ctx, &lines, &kept_ambiguous);
         if taken.iter().any(|t| *t) {
+            let mut without = lines.clone();
             let mut keep = taken.iter().map(|t| !t);
-            lines.accepted.retain(|_| keep.next().unwrap_or(true));
-            found = surfaces_from(&ctx, &lines);
+            without.accepted.retain(|_| keep.next().unwrap_or(true));
+            let again = surfaces_from(&ctx, &without);
+            // Kept only if the search without them does give reflectors that
+            // take each dropped line's echoes: the probe's point can rest on
+            // echoes the search proper skips (another ambiguous line's), and
+            // a review found a pole's echoes scattered into small points, or
+            // the pole moved to its mirror, when it did not.
+            let confirmed = lines.accepted.iter().zip(&taken).filter(|(_, t)| **t).all(|(l, _)| {
+                again.surfaces.iter().any(|(s, touches)| {
+                    s.kind == SurfaceKind::Point && {
+                        let mut mine = vec![false; ctx.preps.len()];
+                        for &(k, _) in touches {
+                            mine[k] = true;
+                        }
+                        5 * l.touches.iter().filter(|&&(k, _)| mine[k]).count() >= 4 * l.touches.len()
+                    }
+                })
+            });
+            if confirmed {
+                found = again;
+            }
         }
     }
     let Found { surfaces, explained, ghost_echo, .. } = found;
@@ -587,16 +607,15 @@ fn point_explains(ctx: &Ctx, model: Option<envelope::SmallCircle>, at: Point, k:
 fn ambiguous_lines_of_points(ctx: &Ctx, lines: &lines::LinesResult, candidates: &[bool]) -> Vec<bool> {
     let mut taken = vec![false; lines.accepted.len()];
     let mut by_line = vec![false; ctx.preps.len()];
-    let mut open = vec![false; ctx.preps.len()];
+    let mut skip = vec![false; ctx.preps.len()];
+    // Skipped: echoes a non-ambiguous line explains, and ghost lines' echoes
+    // no accepted line explains (as for the search proper).
     for l in &lines.accepted {
         for &(k, _) in &l.touches {
             by_line[k] = true;
-            open[k] |= !l.surface.ambiguous;
+            skip[k] |= !l.surface.ambiguous;
         }
     }
-    // Skipped: echoes a non-ambiguous line explains, and ghost lines' echoes
-    // no accepted line explains (as for the search proper).
-    let mut skip = open;
     for &k in &lines.ghost_echoes {
         skip[k] |= !by_line[k];
     }
