@@ -451,6 +451,26 @@ fn pole_beside_a_straight_walk_is_one_point() {
     assert!(!points.is_empty() && points.iter().all(|s| s.ambiguous), "on the walk's line: ambiguous");
 }
 
+/// The echoes of tests/data/`name`/echoes.csv: the eight columns of
+/// echoes.csv in their order, and `sigma_m` when a ninth is there (files
+/// written by a generator, so no checks but the echo's own).
+fn echoes_of(name: &str) -> Vec<Echo> {
+    let path = format!("{}/tests/data/{name}/echoes.csv", env!("CARGO_MANIFEST_DIR"));
+    let text = std::fs::read_to_string(&path).expect("test data");
+    text.lines()
+        .skip(1)
+        .map(|l| {
+            let v: Vec<f64> = l.split(',').map(|x| x.parse().expect("number")).collect();
+            let e =
+                Echo::new(Point::new(v[0], v[1]), Point::new(v[2], v[3]), v[4], v[5], v[6], v[7] as u32).expect("echo");
+            match v.get(8) {
+                Some(&s) => e.with_sigma_m(s).expect("sigma"),
+                None => e,
+            }
+        })
+        .collect()
+}
+
 /// Echoes of a 0.2 m pole from a listener walking an arc of radius 3.7 m
 /// past it (160 poses, σ = 2 cm noise): `scene_sweep`'s scene 246, written
 /// out by it (tests/data/arc-past-pole/echoes.csv). Along the walk's last
@@ -462,19 +482,7 @@ fn pole_beside_a_straight_walk_is_one_point() {
 /// reflector of twice its support explains is dropped before the search.
 #[test]
 fn pole_past_an_arc_walk_is_one_point_whatever_the_grid() {
-    let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/arc-past-pole/echoes.csv"))
-        .expect("arc-past-pole echoes");
-    let echoes: Vec<Echo> = text
-        .lines()
-        .skip(1)
-        .map(|l| {
-            let v: Vec<f64> = l.split(',').map(|x| x.parse().expect("number")).collect();
-            Echo::new(Point::new(v[0], v[1]), Point::new(v[2], v[3]), v[4], v[5], v[6], v[7] as u32)
-                .expect("echo")
-                .with_sigma_m(v[8])
-                .expect("sigma")
-        })
-        .collect();
+    let echoes = echoes_of("arc-past-pole");
     assert_eq!(echoes.len(), 160);
     let pole = circle(2.36, 3.10, 0.20);
     // The sweep's grid (the scene's box plus 2 m), and one 14 m wider each way.
@@ -498,16 +506,7 @@ fn pole_past_an_arc_walk_is_one_point_whatever_the_grid() {
 /// echoes, so the line through the pole stays.
 #[test]
 fn a_line_is_dropped_only_for_a_reflector_found_again() {
-    let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/wall-walk-pole/echoes.csv"))
-        .expect("wall-walk-pole echoes");
-    let echoes: Vec<Echo> = text
-        .lines()
-        .skip(1)
-        .map(|l| {
-            let v: Vec<f64> = l.split(',').map(|x| x.parse().expect("number")).collect();
-            Echo::new(Point::new(v[0], v[1]), Point::new(v[2], v[3]), v[4], v[5], v[6], v[7] as u32).expect("echo")
-        })
-        .collect();
+    let echoes = echoes_of("wall-walk-pole");
     assert_eq!(echoes.len(), 40);
     let pole = Point::new(2.1865, 0.6532);
     // `map --echoes`'s default grid for these echoes.
