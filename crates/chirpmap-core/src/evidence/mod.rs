@@ -449,24 +449,26 @@ pub fn map_evidence(echoes: &[Echo], spec: GridSpec, params: &EvidenceParams) ->
     if kept_ambiguous.iter().any(|k| *k) {
         let taken = ambiguous_lines_of_points(&ctx, &lines, &kept_ambiguous);
         if taken.iter().any(|t| *t) {
-            let mut without = lines.clone();
-            let mut keep = taken.iter().map(|t| !t);
-            without.accepted.retain(|_| keep.next().unwrap_or(true));
+            let (dropped, kept): (Vec<_>, Vec<_>) = lines.accepted.iter().zip(&taken).partition(|(_, t)| **t);
+            let without = lines::LinesResult {
+                accepted: kept.into_iter().map(|(l, _)| l.clone()).collect(),
+                ghost_echoes: lines.ghost_echoes.clone(),
+            };
             let again = surfaces_from(&ctx, &without);
             // Kept only if the search without them does give reflectors that
             // take each dropped line's echoes: the probe's point can rest on
             // echoes the search proper skips (another ambiguous line's), and
             // a review found a pole's echoes scattered into small points, or
             // the pole moved to its mirror, when it did not.
-            let confirmed = lines.accepted.iter().zip(&taken).filter(|(_, t)| **t).all(|(l, _)| {
+            let mut of_line = vec![false; ctx.preps.len()];
+            let confirmed = dropped.iter().all(|(l, _)| {
+                of_line.fill(false);
+                for &(k, _) in &l.touches {
+                    of_line[k] = true;
+                }
                 again.surfaces.iter().any(|(s, touches)| {
-                    s.kind == SurfaceKind::Point && {
-                        let mut mine = vec![false; ctx.preps.len()];
-                        for &(k, _) in touches {
-                            mine[k] = true;
-                        }
-                        5 * l.touches.iter().filter(|&&(k, _)| mine[k]).count() >= 4 * l.touches.len()
-                    }
+                    s.kind == SurfaceKind::Point
+                        && 5 * touches.iter().filter(|&&(k, _)| of_line[k]).count() >= 4 * l.touches.len()
                 })
             });
             if confirmed {
