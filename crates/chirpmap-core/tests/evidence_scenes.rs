@@ -403,6 +403,44 @@ fn cropping_the_grid_keeps_walls_beyond_it() {
     }
 }
 
+/// A grid too wide for the line vote's offset bins (at most 2²⁰ a row):
+/// the bins are widened to cover its whole reach, up to twice what the
+/// echoes' σ asks for, and past that the map is refused. Before, the row was
+/// cut at 2²⁰ bins from one edge, so walls whose offsets lay beyond were
+/// never voted for: here, a room 30 km from the centre of an 80 km grid
+/// lost all four walls (a helper's audit, session 27, found a wall lost on
+/// a 2 000 km grid).
+#[test]
+fn a_grid_too_wide_for_the_vote_keeps_its_walls_or_is_refused() {
+    let dx = 30_000.0;
+    let room = polygon(&[(dx, 0.0), (dx + 8.0, 0.0), (dx + 8.0, 6.0), (dx, 6.0)]);
+    let scene = ExactScene::from_obstacles(&[room]);
+    let poses = loop_poses(Point::new(dx + 4.0, 3.0), 2.6, 1.8, 160);
+    let echoes =
+        exact_echoes(Point::new(dx + 2.0, 2.5), &poses, &scene, &ExactOptions::default()).expect("exact echoes");
+    let params = EvidenceParams::default();
+    let wide = GridSpec::from_bounds([-40_000.0, -3.0, 40_000.0, 9.0], 1.0, u128::MAX).expect("grid");
+    let map = map_evidence(&echoes, wide, &params).expect("map");
+    let walls = [
+        ((dx, 0.0), (dx + 8.0, 0.0)),
+        ((dx + 8.0, 0.0), (dx + 8.0, 6.0)),
+        ((dx, 6.0), (dx + 8.0, 6.0)),
+        ((dx, 0.0), (dx, 6.0)),
+    ];
+    for (a, b) in walls {
+        let (a, b) = (Point::new(a.0, a.1), Point::new(b.0, b.1));
+        let on = |p: Point| {
+            let d = b - a;
+            ((p - a).x * d.y - (p - a).y * d.x).abs() / d.norm() < 0.05
+        };
+        let found = map.surfaces.iter().any(|s| s.kind == SurfaceKind::Line && on(s.p0) && on(s.p1));
+        assert!(found, "wall {a}–{b} lost: {:?}", map.surfaces);
+    }
+    let wider = GridSpec::from_bounds([-100_000.0, -3.0, 100_000.0, 9.0], 1.0, u128::MAX).expect("grid");
+    let err = map_evidence(&echoes, wider, &params).expect_err("bins widened 3×");
+    assert!(err.to_string().contains("offset bins"), "{err}");
+}
+
 #[test]
 fn pole_beside_a_straight_walk_is_one_point() {
     // The paper's field environment B: a 0.1 m pole 4 m from the source, a

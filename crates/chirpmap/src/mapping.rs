@@ -237,7 +237,18 @@ pub fn map_echoes(echoes: &[Echo], extra: &[(Point, Point)], opts: &MapOptions) 
     // that shows nothing (`--cell 1e300` gave 4 × 4 cells at ±2e300 m);
     // `simulate` refuses such cells for its world too.
     let side_m = (covered[2] - covered[0]).min(covered[3] - covered[1]);
-    if params.cell > side_m / 2.0 {
+    if side_m.is_nan() || side_m / 2.0 < 1e-6 {
+        // Only degenerate ellipses (a listener within a hair of the source)
+        // or bounds of zero width cover so little: no cell would do.
+        return Err(Error::Invalid(format!(
+            "the map covers only {} m across (each echo's source and listener all but coincide, or the bounds \
+             have no width): give bounds",
+            Num(side_m)
+        )));
+    }
+    // With a relative tolerance: 6.1 − 5.9 is 0.19999999999999973, and a
+    // cell of 0.1 m was refused as more than half of it.
+    if params.cell > side_m / 2.0 * (1.0 + 1e-9) {
         return Err(Error::Invalid(format!(
             "cell {} m leaves fewer than 2 cells across the {} m the map covers: use a cell of at most {} m \
              (paper: 0.1)",
@@ -312,6 +323,23 @@ mod tests {
         // Foci (0,0), (2,0), Δd = 2: major axis 4, so x ∈ [-1, 3], y ∈ [-√3, √3].
         let b = covering_bounds(&[echo(0.0, 2.0, 2.0)], &[], 0.1).expect("finite");
         assert!(b[0] <= -1.0 && b[2] >= 3.0 && b[1] <= -(3f64).sqrt() && b[3] >= 3f64.sqrt());
+    }
+
+    /// A cell of half the bounds' side is allowed though the side, a
+    /// difference of decimals, rounds below twice the cell (6.1 − 5.9 =
+    /// 0.19999999999999973); echoes whose ellipses cover nothing get a
+    /// message that does not ask for a cell of "at most 0 m" (both from a
+    /// helper's audit, session 27).
+    #[test]
+    fn cells_of_half_the_side_pass_and_degenerate_ellipses_are_named() {
+        let echoes = [echo(0.0, 2.0, 2.0)];
+        let at = |bounds| MapOptions { bounds: Some(bounds), ..MapOptions::default() };
+        assert!(map_echoes(&echoes, &[], &at([-3.0, 5.9, 11.0, 6.1])).is_ok());
+        let err = map_echoes(&echoes, &[], &at([-3.0, 5.9, 11.0, 6.09])).expect_err("0.19 m across");
+        assert!(err.to_string().contains("leaves fewer than 2 cells"), "{err}");
+        let hair = [Echo::new(Point::new(0.0, 0.0), Point::new(5e-324, 0.0), 0.0, 1.0, 0.0, 0).expect("valid echo")];
+        let err = map_echoes(&hair, &[], &MapOptions::default()).expect_err("nothing covered");
+        assert!(err.to_string().contains("covers only 0 m across"), "{err}");
     }
 
     #[test]

@@ -974,13 +974,20 @@ impl Geom {
         if reach > g.r_max {
             let cap_bins = ((DEFAULT_MEMORY_CAP_BYTES / 4) / g.k_bins as u128).min(MAX_RHO_BINS as u128) as usize;
             let room = (cap_bins.saturating_sub(g.n_rho) / 2).min(MAX_EXTENSION * g.n_rho);
-            g.ext = (((reach - g.r_max) / rho_bin).ceil() as usize).min(room);
+            g.ext = (((reach - g.r_max) / g.rho_bin).ceil() as usize).min(room);
             g.n_rho += 2 * g.ext;
         }
         g
     }
+    /// Bins of `rho_bin`, widened where the grid's reach would need more
+    /// than [`MAX_RHO_BINS`] of them: a row capped at that many covered only
+    /// the offsets nearest −r_max, so on a grid 200 km wide the walls
+    /// through its middle were never voted for ([`check_vote_memory`]
+    /// refuses bins widened to more than twice `rho_bin`).
     fn of(spec: &GridSpec, angle_bins: u32, rho_bin: f64, origin: Point) -> Self {
         let r_max = 0.5 * (spec.x_max_m() - spec.x_min_m).hypot(spec.y_max_m() - spec.y_min_m) + spec.cell_m;
+        // Two bins short of the cap, so the rounding of the count below stays within it.
+        let rho_bin = rho_bin.max(2.0 * r_max / (MAX_RHO_BINS - 2) as f64);
         let k_bins = angle_bins as usize;
         Geom {
             origin,
@@ -1022,7 +1029,8 @@ pub(crate) fn vote_rho_bin(cell_m: f64, params: &EvidenceParams, sigmas_m: impl 
 /// Refuses a grid and angle resolution whose line vote (an f32 accumulator of
 /// `angle_bins` × offset bins of `rho_bin`) would need more than the
 /// mapper's memory cap, before anything is allocated: an error naming the
-/// field, not an abort.
+/// field, not an abort; and a grid whose reach needs offset bins widened
+/// past twice `rho_bin` ([`Geom::of`]).
 pub(crate) fn check_vote_memory(spec: GridSpec, params: &EvidenceParams, rho_bin: f64) -> Result<(), CoreError> {
     let g = Geom::of(&spec, params.angle_bins, rho_bin, Point::new(0.0, 0.0));
     let bytes = (g.k_bins as u128) * (g.n_rho as u128) * 4;
@@ -1035,6 +1043,18 @@ pub(crate) fn check_vote_memory(spec: GridSpec, params: &EvidenceParams, rho_bin
                 g.k_bins, g.n_rho
             ),
         });
+    }
+    // Offset bins widened to more than twice what the echoes' σ asks for
+    // quantise a wall's offset past its band, and walls are lost (a wall
+    // of σ = 2 cm was found on a grid 80 km wide, bins 1.2× wider, and lost
+    // at 200 km, 3×): refused rather than lost silently.
+    if g.rho_bin > 2.0 * rho_bin {
+        return Err(CoreError::InvalidGrid(format!(
+            "the line vote would need {} offset bins of {} m across this grid, more than the {MAX_RHO_BINS} it can \
+             vote; use smaller bounds or a larger cell",
+            crate::error::Num((2.0 * g.r_max / rho_bin).ceil() + 1.0),
+            crate::error::Num(rho_bin)
+        )));
     }
     Ok(())
 }
@@ -1167,9 +1187,17 @@ fn hough_peaks(ctx: &Ctx, tan: &Tangents, g: &Geom) -> Vec<(f32, usize, usize)> 
     };
     let mut peaks: Vec<(f32, usize, usize)> = (0..k_bins).into_par_iter().flat_map_iter(row_peaks).collect();
     peaks.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)).then(a.2.cmp(&b.2)));
-    peaks.truncate(4 * p.max_surfaces as usize);
+    peaks.truncate((4 * p.max_surfaces as usize).min(MAX_PEAKS));
     peaks
 }
+
+/// Most Hough peaks refined, whatever `max_surfaces` (whose limit is
+/// 100 000): each refined candidate keeps its echoes, and the screening's
+/// nearness test and the duplicate test compare candidates pairwise, so 4 ×
+/// 100 000 peaks of 10 000 random echoes (with nothing screened) took
+/// 2.5 min and 8.4 GB, far past the memory cap. The default `max_surfaces`
+/// (64) refines 256.
+const MAX_PEAKS: usize = 1024;
 
 /// The peaks, strongest first, screened and refined: `(refined, screened)`.
 /// A peak next to a line already refined or screened (within 2 bins in
@@ -1428,6 +1456,23 @@ mod tests {
             }
         }
         (refined, screened, near_n)
+    }
+
+    /// At most [`MAX_PEAKS`] peaks are refined however many surfaces are
+    /// allowed: the room's echoes with every local maximum of two votes a
+    /// peak give more than that.
+    #[test]
+    fn peaks_are_capped_whatever_max_surfaces() {
+        let (echoes, spec) = room_echoes();
+        let params = EvidenceParams { max_surfaces: 100_000, min_support: 2, ..EvidenceParams::default() };
+        let mut ctx = prepare(&echoes, spec, &params).expect("ctx");
+        carve_free(&mut ctx).expect("carve");
+        let g = Geom::new(&ctx);
+        let tan = Tangents::new(&ctx, g.origin);
+        assert_eq!(hough_peaks(&ctx, &tan, &g).len(), MAX_PEAKS);
+        let few = EvidenceParams { max_surfaces: 10, ..params };
+        let ctx = Ctx { params: &few, ..ctx };
+        assert_eq!(hough_peaks(&ctx, &tan, &g).len(), 40);
     }
 
     /// The batched screening takes exactly the candidates of the one peak at
