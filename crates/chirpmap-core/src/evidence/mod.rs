@@ -430,9 +430,8 @@ pub fn map_evidence(echoes: &[Echo], spec: GridSpec, params: &EvidenceParams) ->
     // this mapper, so nothing is lost.
     let mut seen = std::collections::HashSet::new();
     let mut keep = |e: &Echo| {
-        let key = (e.listener_id, e.t_s.to_bits(), e.source.x.to_bits(), e.source.y.to_bits());
-        let key =
-            (key, e.listener.x.to_bits(), e.listener.y.to_bits(), e.delta_d_m.to_bits(), e.sigma_m.map(f64::to_bits));
+        let at = [e.t_s, e.source.x, e.source.y, e.listener.x, e.listener.y, e.delta_d_m].map(f64::to_bits);
+        let key = (e.listener_id, at, e.sigma_m.map(f64::to_bits));
         e.weight != 0.0 && seen.insert(key)
     };
     let kept: Vec<bool> = echoes.iter().map(&mut keep).collect();
